@@ -1,0 +1,63 @@
+"""Small argument checks shared by the layers above (imports nothing from angiohull but errors)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from .errors import AngiohullError
+
+
+def positive_finite(value: Any, name: str, *, error: type[AngiohullError] = AngiohullError) -> float:
+    """Return ``value`` as a float, or raise ``error`` if it is not a finite number > 0."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise error(f"{name} must be a positive number, got {value!r}") from None
+    if not math.isfinite(number) or number <= 0:
+        raise error(f"{name} must be a positive finite number, got {value!r}")
+    return number
+
+
+def finite(value: Any, name: str, *, error: type[AngiohullError] = AngiohullError) -> float:
+    """Return ``value`` as a float, or raise ``error`` if it is not a finite number."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise error(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(number):
+        raise error(f"{name} must be a finite number, got {value!r}")
+    return number
+
+
+def positive_int(value: Any, name: str, *, error: type[AngiohullError] = AngiohullError) -> int:
+    """Return ``value`` as an int, or raise ``error`` if it is not an integer >= 1."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        if isinstance(value, (float, np.floating)) and float(value).is_integer():
+            value = int(value)
+        else:
+            raise error(f"{name} must be a positive integer, got {value!r}")
+    if int(value) < 1:
+        raise error(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def image_shape(value: Any, name: str = "image_shape", *, error: type[AngiohullError] = AngiohullError) -> tuple[int, int]:
+    """Return ``(rows, cols)`` as a tuple of two positive ints, or raise ``error``."""
+    try:
+        items = tuple(value)
+    except TypeError:
+        raise error(f"{name} must be (rows, cols), got {value!r}") from None
+    if len(items) != 2:
+        raise error(f"{name} must be (rows, cols) with 2 entries, got {len(items)}: {value!r}")
+    return (positive_int(items[0], f"{name}[0] (rows)", error=error), positive_int(items[1], f"{name}[1] (cols)", error=error))
+
+
+def points_array(points: Any, name: str = "points", *, error: type[AngiohullError] = AngiohullError) -> np.ndarray:
+    """Return ``points`` as a float64 (N, 3) array, or raise ``error`` naming the shape received."""
+    array = np.asarray(points, dtype=np.float64)
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise error(f"{name} must be an (N, 3) array of x, y, z in mm, got shape {array.shape}")
+    return array

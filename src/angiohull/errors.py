@@ -1,0 +1,55 @@
+"""Domain errors of angiohull.
+
+Every error a user can trigger with bad input is one of these. They derive from :class:`ValueError`
+so that code written against plain NumPy/scikit-image conventions keeps working, and each message
+says what was received, what was expected and, where possible, how to fix it.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "AngiohullError",
+    "GeometryError",
+    "StudyError",
+    "ReconstructionError",
+    "EmptyHullError",
+]
+
+
+class AngiohullError(ValueError):
+    """Base class of all errors raised for bad input to angiohull."""
+
+
+class GeometryError(AngiohullError):
+    """An acquisition geometry (C-arm parameters or projection matrix) is invalid."""
+
+
+class StudyError(AngiohullError):
+    """A study folder, its ``study.yaml`` or one of the files it names is invalid.
+
+    The message starts with the file (and, for YAML, the field) that is at fault.
+    """
+
+
+class ReconstructionError(AngiohullError):
+    """The inputs of a reconstruction are inconsistent (shapes, options)."""
+
+
+class EmptyHullError(ReconstructionError):
+    """Carving removed every point of the cube of interest.
+
+    Attributes
+    ----------
+    view_index : int
+        Index of the view whose filtering removed the last points.
+    view_name : str
+        Its name, where one was given.
+    points_before : int
+        How many points were still alive before that view was applied.
+    """
+
+    def __init__(self, message: str, *, view_index: int, view_name: str, points_before: int):
+        super().__init__(message)
+        self.view_index = view_index
+        self.view_name = view_name
+        self.points_before = points_before

@@ -1,0 +1,169 @@
+"""Visual-hull reconstruction from binary masks and projections (arrays in, arrays out).
+
+The single entry point is :func:`reconstruct`. Nothing in this package reads or writes files.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from .. import _validation as _v
+from ..errors import EmptyHullError, ReconstructionError
+from ..geometry import Projection, cube_half_edge_mm
+from .centerlines import extract_centerlines, skeletonise
+from .cube import MAX_DENSE_RESOLUTION, Lattice
+from .engines import ENGINES, CarveOutcome
+
+__all__ = [
+    "reconstruct",
+    "ReconstructionResult",
+    "Lattice",
+    "ENGINES",
+    "CarveOutcome",
+    "extract_centerlines",
+    "skeletonise",
+    "DEFAULT_RESOLUTION",
+    "DEFAULT_THRESHOLD_PX",
+    "MAX_DENSE_RESOLUTION",
+]
+
+DEFAULT_RESOLUTION = 100
+"""K of the paper's experiments."""
+DEFAULT_THRESHOLD_PX = 1.0
+"""The paper's distance threshold, pixels (strict)."""
+
+
+@dataclass(frozen=True)
+class ReconstructionResult:
+    """Output of :func:`reconstruct`."""
+
+    vessel_points_mm: np.ndarray  # (N, 3) kept lattice points, mm
+    centerline_points_mm: np.ndarray | None  # (M, 3) centerline points, mm; None when not requested
+    lattice: Lattice  # the cube of interest that was carved
+    engine: str  # name of the carving engine
+    threshold_px: float  # distance threshold, px (strict)
+    view_names: tuple[str, ...]  # names of the views, in the order applied
+    survivors_per_view: tuple[int, ...]  # points alive after each view
+    timings_s: dict[str, float] = field(default_factory=dict)  # seconds per stage: cube, carve, centerlines, reconstruction
+
+    @property
+    def lattice_spacing_mm(self) -> float:
+        """Distance between neighbouring lattice points, mm."""
+        return self.lattice.spacing_mm
+
+    @property
+    def time_s(self) -> float:
+        """Time of the vessel reconstruction alone (cube of interest + carving), seconds."""
+        return self.timings_s["reconstruction"]
+
+
+def _check_inputs(projections: Sequence[Projection], masks: Sequence[np.ndarray],
+                  view_names: Sequence[str] | None) -> tuple[list[np.ndarray], tuple[str, ...]]:
+    if len(projections) == 0:
+        raise ReconstructionError("reconstruction needs at least one view, got none")
+    if len(masks) != len(projections):
+        raise ReconstructionError(f"got {len(projections)} projections but {len(masks)} masks; give one mask per view")
+    names = tuple(view_names) if view_names is not None else tuple(f"view{i}" for i in range(len(projections)))
+    if len(names) != len(projections):
+        raise ReconstructionError(f"got {len(names)} view names for {len(projections)} views")
+    checked = []
+    for i, (projection, mask, name) in enumerate(zip(projections, masks, names)):
+        if not isinstance(projection, Projection):
+            raise ReconstructionError(f"view {i} ({name!r}): expected a Projection, got {type(projection).__name__}")
+        array = np.asarray(mask)
+        if array.ndim != 2:
+            raise ReconstructionError(f"view {i} ({name!r}): mask must be a 2D (rows, cols) array, got shape {array.shape}")
+        if array.shape != projection.image_shape:
+            raise ReconstructionError(
+                f"view {i} ({name!r}): mask shape {array.shape} differs from the projection's image shape "
+                f"{projection.image_shape} (rows, cols)"
+            )
+        array = array.astype(bool, copy=False)
+        if not array.any():
+            raise ReconstructionError(f"view {i} ({name!r}): mask is empty (no vessel pixel); nothing can be reconstructed")
+        checked.append(array)
+    return checked, names
+
+
+def _empty_hull_error(outcome: CarveOutcome, names: tuple[str, ...], lattice: Lattice) -> EmptyHullError:
+    counts = (lattice.n_points,) + outcome.survivors_per_view
+    view = next(i for i, n in enumerate(outcome.survivors_per_view) if n == 0)
+    return EmptyHullError(
+        f"the visual hull is empty: view {view} ({names[view]!r}) removed the last {counts[view]} points "
+        f"(survivors after each view: {list(outcome.survivors_per_view)}). The views do not agree on any "
+        f"point: check the calibration (angles, SID/SOD, pixel spacing, image shifts) and that the masks "
+        f"show the same vessels; a larger threshold_px tolerates small misalignments.",
+        view_index=view, view_name=names[view], points_before=counts[view],
+    )
+
+
+def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
+                resolution: int = DEFAULT_RESOLUTION, threshold_px: float = DEFAULT_THRESHOLD_PX,
+                engine: str = "kdtree", centerlines: bool = True, view_names: Sequence[str] | None = None,
+                half_edge_mm: float | None = None, allow_empty: bool = False) -> ReconstructionResult:
+    """Carve the visual hull of the masks and, optionally, its centerline points.
+
+    Parameters
+    ----------
+    projections : sequence of Projection
+        One per view, applied in this order.
+    masks : sequence of (rows, cols) arrays
+        Nonzero = vessel; shape must equal the projection's ``image_shape``.
+    resolution : int, keyword-only
+        K, lattice points per axis of the cube of interest (default 100, as in the paper).
+    threshold_px : float, keyword-only
+        A point survives a view when its projection is strictly closer than this to a mask pixel
+        centre (default 1.0).
+    engine : str, keyword-only
+        Name of a carving engine in :data:`ENGINES`.
+    centerlines : bool, keyword-only
+        Also extract centerline points (Guo–Hall skeletons).
+    view_names : sequence of str, optional
+        Used in messages and the result.
+    half_edge_mm : float, optional
+        Override of the cube's half-edge R (default: from the views, DESIGN.md step 2).
+    allow_empty : bool, keyword-only
+        Return an empty result instead of raising :class:`EmptyHullError`.
+
+    Returns
+    -------
+    ReconstructionResult
+    """
+    checked_masks, names = _check_inputs(projections, masks, view_names)
+    threshold = _v.positive_finite(threshold_px, "threshold_px", error=ReconstructionError)
+    if engine not in ENGINES:
+        raise ReconstructionError(f"unknown engine {engine!r}; choose one of {sorted(ENGINES)}")
+    timings: dict[str, float] = {}
+
+    start = time.perf_counter()
+    radius = cube_half_edge_mm(projections) if half_edge_mm is None else half_edge_mm
+    lattice = Lattice(radius, resolution)
+    timings["cube"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    outcome = ENGINES[engine](lattice, list(projections), checked_masks, threshold_px=threshold)
+    timings["carve"] = time.perf_counter() - start
+    timings["reconstruction"] = timings["cube"] + timings["carve"]
+    if len(outcome.points_mm) == 0 and not allow_empty:
+        raise _empty_hull_error(outcome, names, lattice)
+
+    centerline_points = None
+    if centerlines:
+        start = time.perf_counter()
+        centerline_points = extract_centerlines(outcome.points_mm, projections, checked_masks)
+        timings["centerlines"] = time.perf_counter() - start
+    timings["total"] = sum(v for k, v in timings.items() if k != "reconstruction")
+    return ReconstructionResult(
+        vessel_points_mm=outcome.points_mm,
+        centerline_points_mm=centerline_points,
+        lattice=lattice,
+        engine=engine,
+        threshold_px=threshold,
+        view_names=names,
+        survivors_per_view=outcome.survivors_per_view,
+        timings_s=timings,
+    )

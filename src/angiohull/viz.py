@@ -1,0 +1,394 @@
+"""Static figures of a reconstruction (PNG), drawn with Matplotlib's Agg canvas.
+
+This module sits on top of the layer stack: only the CLI imports it, and it never touches
+Matplotlib's global state (no ``pyplot``, no ``matplotlib.use``): every figure is a
+:class:`matplotlib.figure.Figure` bound to its own :class:`FigureCanvasAgg`, so it is safe in
+headless processes, threads and test suites.
+
+Public functions
+----------------
+:func:`reconstruction_figure`
+    One PNG that summarises a reconstruction: the point cloud projected on the three anatomical
+    planes (top row) and, for every view, the input mask overlaid with the reconstruction's
+    re-projected silhouette (bottom rows).
+:func:`overlay_rgb`
+    The colour-coded mask / re-projection comparison image used by the view panels.
+
+Colour code of the overlays (:data:`OVERLAY_COLOURS`, Okabe–Ito colours that stay distinct for
+colour-blind readers): pixels in both the mask and the re-projection are light grey, mask-only
+pixels (vessel the reconstruction missed) are vermillion, re-projection-only pixels (spurious
+reconstruction) are sky blue, and pixels in neither are black.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.patches import Patch
+
+from .errors import AngiohullError
+
+__all__ = ["OVERLAY_COLOURS", "overlay_rgb", "reconstruction_figure"]
+
+#: RGB colour (uint8) of each overlay class.
+OVERLAY_COLOURS: dict[str, tuple[int, int, int]] = {
+    "background": (0, 0, 0),
+    "both": (235, 235, 235),  # in the mask and in the re-projection: agreement
+    "missed": (213, 94, 0),  # mask only: vessel the reconstruction does not cover
+    "spurious": (86, 180, 233),  # re-projection only: reconstruction outside the vessel
+}
+
+_OVERLAY_LABELS = {"both": "both", "missed": "mask only (missed)", "spurious": "reprojection only (spurious)"}
+
+#: Above this many vessel points the projections draw an evenly strided subset (drawing cost).
+_MAX_DRAWN_POINTS = 200_000
+_CENTERLINE_COLOUR = "#d62728"
+_GROUND_TRUTH_COLOUR = "0.55"
+_POINT_CMAP = "viridis"
+_VIEWS_PER_ROW = 4
+_GRID_COLUMNS = 24  # top panels span 8 columns, view panels 6: rows of 1-4 views centre exactly
+
+# (horizontal axis, vertical axis, depth axis, panel title, nearer-to-viewer is larger depth?)
+_AXIS_LABELS = ("x", "y", "z")
+_PLANES = (
+    (0, 2, 1, "Frontal (seen from anterior)", False),
+    (1, 2, 0, "Lateral (seen from patient's left)", True),
+    (0, 1, 2, "Axial (seen from feet)", False),
+)
+_HORIZONTAL_LABELS = {0: "x (mm, patient left →)", 1: "y (mm, posterior →)"}
+_VERTICAL_LABELS = {2: "z (mm, head ↑)", 1: "y (mm, posterior ↓)"}
+
+
+# --------------------------------------------------------------------------------------------------
+# Validation helpers
+# --------------------------------------------------------------------------------------------------
+
+
+def _points(value: Any, name: str) -> np.ndarray:
+    """Return ``value`` as a finite float64 (N, 3) array (an empty input gives (0, 3))."""
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise AngiohullError(f"{name} must be an (N, 3) array of x, y, z in mm, got {type(value).__name__}") from None
+    if array.size == 0:
+        return np.empty((0, 3), dtype=np.float64)
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise AngiohullError(f"{name} must be an (N, 3) array of x, y, z in mm, got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        bad = int(np.count_nonzero(~np.isfinite(array).all(axis=1)))
+        raise AngiohullError(f"{name} contains {bad} point(s) with NaN or infinite coordinates")
+    return array
+
+
+def _image(value: Any, name: str) -> np.ndarray:
+    """Return ``value`` as a 2-D bool array (nonzero = True)."""
+    array = np.asarray(value)
+    if array.ndim != 2:
+        raise AngiohullError(f"{name} must be a 2-D (rows, cols) image, got shape {array.shape}")
+    if array.shape[0] == 0 or array.shape[1] == 0:
+        raise AngiohullError(f"{name} must not be empty, got shape {array.shape}")
+    if array.dtype == bool:
+        return array
+    if not (np.issubdtype(array.dtype, np.number)):
+        raise AngiohullError(f"{name} must be a boolean or numeric image, got dtype {array.dtype}")
+    return array != 0
+
+
+def _sequence(value: Any, name: str) -> list[Any]:
+    if isinstance(value, (str, bytes)) or isinstance(value, np.ndarray) and value.ndim < 1:
+        raise AngiohullError(f"{name} must be a sequence with one entry per view, got {type(value).__name__}")
+    if isinstance(value, np.ndarray) and value.ndim == 2:
+        # A single 2-D image is almost certainly a mistake (one view without the enclosing list).
+        raise AngiohullError(f"{name} must be a sequence of 2-D images (one per view), got a single array of shape {value.shape}")
+    try:
+        return list(value)
+    except TypeError:
+        raise AngiohullError(f"{name} must be a sequence with one entry per view, got {type(value).__name__}") from None
+
+
+# --------------------------------------------------------------------------------------------------
+# Overlay
+# --------------------------------------------------------------------------------------------------
+
+
+def overlay_rgb(mask: Any, reprojection: Any) -> np.ndarray:
+    """Colour-code the agreement between an input mask and the reconstruction's silhouette.
+
+    Parameters
+    ----------
+    mask, reprojection : array_like, shape (rows, cols)
+        Boolean images (nonzero counts as True) of the same shape: the view's input vessel mask
+        and the reconstruction projected into that view.
+
+    Returns
+    -------
+    numpy.ndarray, shape (rows, cols, 3), dtype uint8
+        Each pixel takes the colour of its class in :data:`OVERLAY_COLOURS`: ``"both"`` (light
+        grey), ``"missed"`` (mask only), ``"spurious"`` (re-projection only) or ``"background"``.
+
+    Raises
+    ------
+    AngiohullError (a ValueError)
+        If an input is not 2-D or the shapes differ.
+    """
+    mask_b = _image(mask, "mask")
+    reproj_b = _image(reprojection, "reprojection")
+    if mask_b.shape != reproj_b.shape:
+        raise AngiohullError(
+            f"mask and reprojection must have the same (rows, cols) shape, got {mask_b.shape} and {reproj_b.shape}"
+        )
+    rgb = np.empty(mask_b.shape + (3,), dtype=np.uint8)
+    rgb[...] = OVERLAY_COLOURS["background"]
+    rgb[mask_b & reproj_b] = OVERLAY_COLOURS["both"]
+    rgb[mask_b & ~reproj_b] = OVERLAY_COLOURS["missed"]
+    rgb[~mask_b & reproj_b] = OVERLAY_COLOURS["spurious"]
+    return rgb
+
+
+# --------------------------------------------------------------------------------------------------
+# Figure
+# --------------------------------------------------------------------------------------------------
+
+
+def _marker_size(n: int) -> float:
+    """Scatter marker area (points^2) that keeps dense clouds readable and sparse ones visible."""
+    if n <= 0:
+        return 4.0
+    return float(np.clip(3000.0 / n, 0.3, 6.0))
+
+
+def _limits(layers: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Common (low, high) per axis over all non-empty layers, padded, with a minimum extent."""
+    present = [layer for layer in layers if len(layer)]
+    if not present:
+        return np.full(3, -1.0), np.full(3, 1.0)
+    stacked = np.concatenate(present, axis=0)
+    low, high = stacked.min(axis=0), stacked.max(axis=0)
+    centre = (low + high) / 2.0
+    half = np.maximum((high - low) / 2.0, 1.0) * 1.06
+    return centre - half, centre + half
+
+
+def _draw_plane(fig: Figure, ax: Any, plane: tuple, vessel: np.ndarray, centerline: np.ndarray | None,
+                ground_truth: np.ndarray | None, low: np.ndarray, high: np.ndarray, with_legend: bool) -> None:
+    h, v, d, panel_title, nearer_is_larger = plane
+    handles = []
+    if ground_truth is not None and len(ground_truth):
+        handles.append(ax.scatter(ground_truth[:, h], ground_truth[:, v], s=_marker_size(len(ground_truth)),
+                                  c=_GROUND_TRUTH_COLOUR, alpha=0.3, linewidths=0, label="ground truth", zorder=1))
+    if len(vessel):
+        # Far points first, so that the points nearer to the viewer are drawn on top.
+        order = np.argsort(vessel[:, d], kind="stable")
+        if not nearer_is_larger:
+            order = order[::-1]
+        pts = vessel[order]
+        sc = ax.scatter(pts[:, h], pts[:, v], s=_marker_size(len(vessel)), c=pts[:, d], cmap=_POINT_CMAP,
+                        vmin=low[d], vmax=high[d], linewidths=0, label="vessel", zorder=2)
+        handles.append(sc)
+        cbar = fig.colorbar(sc, ax=ax, shrink=0.8, aspect=30, pad=0.02)
+        cbar.set_label(f"depth: {_AXIS_LABELS[d]} (mm)", fontsize=7)
+        cbar.ax.tick_params(labelsize=6)
+    else:
+        ax.text(0.5, 0.5, "empty reconstruction\n(0 vessel points)", transform=ax.transAxes, ha="center",
+                va="center", fontsize=10, color="0.25", zorder=4,
+                bbox=dict(boxstyle="round,pad=0.4", facecolor="white", edgecolor="0.6", alpha=0.9))
+    if centerline is not None and len(centerline):
+        handles.append(ax.scatter(centerline[:, h], centerline[:, v], s=max(_marker_size(len(centerline)), 2.0),
+                                  c=_CENTERLINE_COLOUR, linewidths=0, label="centerline", zorder=3))
+    ax.set_xlim(low[h], high[h])
+    if v == 1:  # axial: anterior at the top, as seen from the feet
+        ax.set_ylim(high[v], low[v])
+    else:
+        ax.set_ylim(low[v], high[v])
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_xlabel(_HORIZONTAL_LABELS[h], fontsize=8)
+    ax.set_ylabel(_VERTICAL_LABELS[v], fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.set_title(panel_title, fontsize=9)
+    ax.grid(True, linewidth=0.3, alpha=0.5)
+    if with_legend and len(handles) > 1:
+        legend = ax.legend(handles=handles, loc="upper right", fontsize=6, framealpha=0.8,
+                           handletextpad=0.3, borderpad=0.3)
+        legend_handles = getattr(legend, "legend_handles", None)
+        if legend_handles is None:  # Matplotlib < 3.7
+            legend_handles = legend.legendHandles
+        for handle in legend_handles:
+            handle.set_sizes([16.0])
+
+
+def _draw_view(ax: Any, mask: np.ndarray, reprojection: np.ndarray, name: str, score: float | None) -> None:
+    ax.imshow(overlay_rgb(mask, reprojection), interpolation="nearest")
+    ax.set_axis_off()
+    label = name
+    if score is not None:
+        label += f" — Dice {score:.1f}%" if math.isfinite(score) else " — Dice n/a"
+    ax.set_title(label, fontsize=9)
+    counts = {
+        "both": int(np.count_nonzero(mask & reprojection)),
+        "missed": int(np.count_nonzero(mask & ~reprojection)),
+        "spurious": int(np.count_nonzero(~mask & reprojection)),
+    }
+    handles = [
+        Patch(facecolor=np.asarray(OVERLAY_COLOURS[key]) / 255.0, edgecolor="0.4", linewidth=0.5,
+              label=f"{_OVERLAY_LABELS[key]}: {counts[key]}")
+        for key in ("both", "missed", "spurious")
+    ]
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=1, fontsize=6,
+              frameon=False, handlelength=1.0, handleheight=0.8, handletextpad=0.4, borderaxespad=0.2,
+              labelspacing=0.2, title_fontsize=6)
+
+
+def reconstruction_figure(
+    path: str | os.PathLike[str],
+    *,
+    vessel_points_mm: Any,
+    masks: Sequence[Any],
+    reprojections: Sequence[Any],
+    view_names: Sequence[str],
+    centerline_points_mm: Any = None,
+    ground_truth_mm: Any = None,
+    title: str | None = None,
+    view_scores: Sequence[float] | None = None,
+    dpi: int = 110,
+) -> Path:
+    """Write a PNG summarising a reconstruction and return its path.
+
+    Layout: the top row shows the vessel point cloud projected orthographically on the three
+    anatomical planes (LPS millimetres): frontal (x vs z, seen from anterior, so the patient's
+    left is on the viewer's right), lateral (y vs z, seen from the patient's left) and axial (x vs
+    y, seen from the feet, anterior up). Points are coloured by their coordinate along the dropped
+    (depth) axis and drawn far-to-near; centerline points are drawn on top in red and ground-truth
+    points as a faint grey layer underneath. The rows below hold one panel per view (up to four
+    per row) with :func:`overlay_rgb` of the view's mask and the reconstruction's re-projection,
+    titled with the view name and, when given, its score.
+
+    Parameters
+    ----------
+    path : str or path-like
+        Where to write the PNG (parent folders are created). Written as PNG whatever the suffix.
+    vessel_points_mm : array_like, shape (N, 3)
+        The reconstructed vessel points. May be empty: the projection panels then say so.
+    masks : sequence of array_like (rows, cols)
+        The input masks, one per view (nonzero = vessel).
+    reprojections : sequence of array_like (rows, cols)
+        The reconstruction's silhouette in each view, same shapes as ``masks``.
+    view_names : sequence of str
+        One name per view.
+    centerline_points_mm, ground_truth_mm : array_like, shape (M, 3), optional
+        Centerline points and ground-truth points to draw with the cloud.
+    title : str, optional
+        Figure title (default "angiohull reconstruction"); a line with the counts follows it.
+    view_scores : sequence of float, optional
+        One score per view (plain 2-D Dice in percent), shown in the panel titles; a NaN or
+        ``None`` entry shows as "n/a".
+    dpi : int
+        Resolution of the PNG (the figure is 13 inches wide).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    AngiohullError (a ValueError)
+        If the point arrays are not (N, 3) and finite, the per-view sequences differ in length,
+        a mask and its re-projection differ in shape, or ``dpi`` is not a positive number.
+    """
+    vessel = _points(vessel_points_mm, "vessel_points_mm")
+    centerline = None if centerline_points_mm is None else _points(centerline_points_mm, "centerline_points_mm")
+    ground_truth = None if ground_truth_mm is None else _points(ground_truth_mm, "ground_truth_mm")
+
+    mask_list = _sequence(masks, "masks")
+    reproj_list = _sequence(reprojections, "reprojections")
+    if isinstance(view_names, (str, bytes)):
+        raise AngiohullError("view_names must be a sequence of names (one per view), got a single string")
+    name_list = [str(name) for name in _sequence(view_names, "view_names")]
+    lengths = {"masks": len(mask_list), "reprojections": len(reproj_list), "view_names": len(name_list)}
+    score_list: list[float | None] | None = None
+    if view_scores is not None:
+        raw_scores = _sequence(view_scores, "view_scores")
+        lengths["view_scores"] = len(raw_scores)
+        score_list = []
+        for i, score in enumerate(raw_scores):
+            if score is None:
+                score_list.append(float("nan"))
+                continue
+            try:
+                score_list.append(float(score))
+            except (TypeError, ValueError):
+                raise AngiohullError(f"view_scores[{i}] must be a number, got {score!r}") from None
+    if len(set(lengths.values())) > 1:
+        detail = ", ".join(f"{key}: {value}" for key, value in lengths.items())
+        raise AngiohullError(f"need one entry per view in each per-view sequence, got {detail}")
+    views = []
+    for i, (mask, reproj) in enumerate(zip(mask_list, reproj_list)):
+        mask_b = _image(mask, f"masks[{i}]")
+        reproj_b = _image(reproj, f"reprojections[{i}]")
+        if mask_b.shape != reproj_b.shape:
+            raise AngiohullError(
+                f"view {i} ({name_list[i]!r}): mask shape {mask_b.shape} differs from reprojection shape {reproj_b.shape}"
+            )
+        views.append((mask_b, reproj_b))
+    if isinstance(dpi, (bool, np.bool_)):
+        raise AngiohullError(f"dpi must be a positive number, got {dpi!r}")
+    try:
+        dpi_value = float(dpi)
+    except (TypeError, ValueError):
+        raise AngiohullError(f"dpi must be a positive number, got {dpi!r}") from None
+    if not math.isfinite(dpi_value) or dpi_value <= 0:
+        raise AngiohullError(f"dpi must be a positive number, got {dpi!r}")
+
+    # Drawing a million markers is slow and indistinguishable from a strided subset.
+    drawn = vessel
+    if len(vessel) > _MAX_DRAWN_POINTS:
+        drawn = vessel[np.linspace(0, len(vessel) - 1, _MAX_DRAWN_POINTS).astype(np.int64)]
+    low, high = _limits([vessel] + [layer for layer in (centerline, ground_truth) if layer is not None])
+
+    n_views = len(views)
+    view_rows = math.ceil(n_views / _VIEWS_PER_ROW)
+    top_height, view_height = 4.2, 3.6
+    fig = Figure(figsize=(13.0, top_height + view_rows * view_height + 0.6), dpi=dpi_value, layout="constrained")
+    FigureCanvasAgg(fig)
+    try:
+        grid = fig.add_gridspec(1 + view_rows, _GRID_COLUMNS,
+                                height_ratios=[top_height] + [view_height] * view_rows)
+        span = _GRID_COLUMNS // 3
+        for k, plane in enumerate(_PLANES):
+            ax = fig.add_subplot(grid[0, k * span:(k + 1) * span])
+            _draw_plane(fig, ax, plane, drawn, centerline, ground_truth, low, high, with_legend=(k == 0))
+
+        view_span = _GRID_COLUMNS // _VIEWS_PER_ROW
+        for row in range(view_rows):
+            in_row = list(range(row * _VIEWS_PER_ROW, min(n_views, (row + 1) * _VIEWS_PER_ROW)))
+            start = (_GRID_COLUMNS - view_span * len(in_row)) // 2
+            for j, i in enumerate(in_row):
+                col = start + j * view_span
+                ax = fig.add_subplot(grid[1 + row, col:col + view_span])
+                score = None if score_list is None else score_list[i]
+                _draw_view(ax, views[i][0], views[i][1], name_list[i], score)
+
+        heading = title if title is not None else "angiohull reconstruction"
+        counts = f"{len(vessel):,} vessel points"
+        if len(drawn) < len(vessel):
+            counts += f" ({len(drawn):,} drawn)"
+        if centerline is not None:
+            counts += f" · {len(centerline):,} centerline points"
+        if ground_truth is not None:
+            counts += f" · {len(ground_truth):,} ground-truth points"
+        counts += f" · {n_views} view{'s' if n_views != 1 else ''}"
+        fig.suptitle(f"{heading}\n{counts}", fontsize=12)
+
+        out = Path(path)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(out, format="png", dpi=dpi_value, facecolor="white")
+    finally:
+        fig.clear()
+    return out
