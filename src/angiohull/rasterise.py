@@ -14,7 +14,7 @@ Three rasterisers, each for a stated purpose:
 
 from __future__ import annotations
 
-import math
+import itertools
 
 import numpy as np
 from scipy import ndimage as ndi
@@ -81,12 +81,13 @@ def splat_points(points_mm: np.ndarray, projection: Projection) -> np.ndarray:
 
 
 def cell_silhouette(points_mm: np.ndarray, projection: Projection, cell_mm: float, *,
-                    max_step_px: float = 0.5, chunk_points: int = 2_000_000) -> np.ndarray:
-    """Silhouette of the union of cubes of edge ``cell_mm`` centred on the points.
+                    chunk_pairs: int = 4_000_000) -> np.ndarray:
+    """Silhouette of the union of axis-aligned cubes of edge ``cell_mm`` centred on the points.
 
-    Each cube is sampled on a regular sub-grid fine enough that neighbouring samples project at most
-    ``max_step_px`` apart; every sample marks the pixel whose centre is nearest. This is the
-    reconstruction's silhouette at pixel resolution (used by the plain Dice2D).
+    Pixel ``(r, c)`` is set when the ray from the source through its centre ``(u, v) = (c, r)``
+    meets one of the cubes (slab test, exact up to rounding). This is the reconstruction's
+    silhouette at pixel resolution, used by the plain Dice2D: each kept lattice point stands for
+    the lattice cell around it.
 
     Parameters
     ----------
@@ -95,30 +96,51 @@ def cell_silhouette(points_mm: np.ndarray, projection: Projection, cell_mm: floa
     projection : Projection
     cell_mm : float
         Edge of each cell (the lattice spacing), mm.
-    max_step_px : float, keyword-only
-        Largest projected distance between neighbouring samples of a cell, px.
+    chunk_pairs : int, keyword-only
+        Upper bound on the (cell, candidate pixel) pairs tested at once (bounds memory).
 
     Returns
     -------
     (rows, cols) bool array
     """
     points = _v.points_array(points_mm, error=GeometryError)
-    cell = _v.positive_finite(cell_mm, "cell_mm", error=GeometryError)
-    image = np.zeros(projection.image_shape, dtype=bool)
+    half = _v.positive_finite(cell_mm, "cell_mm", error=GeometryError) / 2.0
+    rows, cols = projection.image_shape
+    image = np.zeros((rows, cols), dtype=bool)
+    corners = np.array(list(itertools.product((-half, half), repeat=3)))
+    centre = projection.camera_centre_mm
+    # cells containing or behind the source have no bounded footprint; they are left out
+    lo, hi = points - half, points + half
+    in_front = np.all(projection.homogeneous((points[:, None, :] + corners).reshape(-1, 3))[:, 2].reshape(-1, 8) > 0, axis=1)
+    contains_source = np.all((lo <= centre) & (centre <= hi), axis=1)
+    points, lo, hi = points[in_front & ~contains_source], lo[in_front & ~contains_source], hi[in_front & ~contains_source]
     if len(points) == 0:
         return image
-    depth = projection.depth_mm(points)
-    points = points[depth > 0]
-    if len(points) == 0:
-        return image
-    f_max = max(projection.focal_lengths_px)
-    nearest = float(projection.depth_mm(points).min())
-    footprint_px = cell * f_max / max(nearest - cell, 1e-6)
-    steps = max(1, math.ceil(footprint_px / max_step_px))
-    offsets_1d = ((np.arange(steps) + 0.5) / steps - 0.5) * cell
-    offsets = np.stack(np.meshgrid(offsets_1d, offsets_1d, offsets_1d, indexing="ij"), -1).reshape(-1, 3)
-    per_chunk = max(1, chunk_points // len(offsets))
-    for start in range(0, len(points), per_chunk):
-        samples = (points[start:start + per_chunk, None, :] + offsets[None]).reshape(-1, 3)
-        image |= splat_points(samples, projection)
+    uv = projection.project((points[:, None, :] + corners).reshape(-1, 3)).reshape(-1, 8, 2)
+    u0 = np.clip(np.ceil(uv[..., 0].min(1)), 0, cols).astype(np.int64)
+    u1 = np.clip(np.floor(uv[..., 0].max(1)), -1, cols - 1).astype(np.int64)
+    v0 = np.clip(np.ceil(uv[..., 1].min(1)), 0, rows).astype(np.int64)
+    v1 = np.clip(np.floor(uv[..., 1].max(1)), -1, rows - 1).astype(np.int64)
+    nu, nv = np.maximum(u1 - u0 + 1, 0), np.maximum(v1 - v0 + 1, 0)
+    pairs = nu * nv
+    inverse = np.linalg.inv(projection.matrix[:, :3])
+    bounds = np.concatenate([[0], np.cumsum(pairs)])
+    start = 0
+    while start < len(points):
+        stop = int(np.searchsorted(bounds, bounds[start] + chunk_pairs, side="right")) - 1
+        stop = max(stop, start + 1)
+        cell = np.repeat(np.arange(start, stop), pairs[start:stop])
+        local = np.arange(len(cell)) - np.repeat(bounds[start:stop] - bounds[start], pairs[start:stop])
+        u = u0[cell] + local % np.maximum(nu[cell], 1)
+        v = v0[cell] + local // np.maximum(nu[cell], 1)
+        # C + t * inv(M) @ [u, v, 1] projects to (u, v) with w = t: t > 0 is in front of the source
+        direction = np.stack([u, v, np.ones_like(u)], axis=1).astype(np.float64) @ inverse.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_lo = (lo[cell] - centre) / direction
+            t_hi = (hi[cell] - centre) / direction
+        t_near = np.where(np.isnan(t_lo), -np.inf, np.minimum(t_lo, t_hi)).max(axis=1)
+        t_far = np.where(np.isnan(t_hi), np.inf, np.maximum(t_lo, t_hi)).min(axis=1)
+        hit = (t_near <= t_far) & (t_far > 0)
+        image[v[hit], u[hit]] = True
+        start = stop
     return image

@@ -53,7 +53,9 @@ _CENTERLINE_COLOUR = "#d62728"
 _GROUND_TRUTH_COLOUR = "0.55"
 _POINT_CMAP = "viridis"
 _VIEWS_PER_ROW = 4
-_GRID_COLUMNS = 24  # top panels span 8 columns, view panels 6: rows of 1-4 views centre exactly
+_FIGURE_WIDTH_IN = 13.0
+_VIEW_PANEL_WIDTH_IN = 3.15  # width of one of four view panels in a row, in inches
+_VIEW_DECORATION_IN = 0.95  # title above and three-line colour legend below a view panel
 
 # (horizontal axis, vertical axis, depth axis, panel title, nearer-to-viewer is larger depth?)
 _AXIS_LABELS = ("x", "y", "z")
@@ -176,7 +178,7 @@ def _limits(layers: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return centre - half, centre + half
 
 
-def _draw_plane(fig: Figure, ax: Any, plane: tuple, vessel: np.ndarray, centerline: np.ndarray | None,
+def _draw_plane(fig: Any, ax: Any, plane: tuple, vessel: np.ndarray, centerline: np.ndarray | None,
                 ground_truth: np.ndarray | None, low: np.ndarray, high: np.ndarray, with_legend: bool) -> None:
     h, v, d, panel_title, nearer_is_larger = plane
     handles = []
@@ -354,24 +356,37 @@ def reconstruction_figure(
 
     n_views = len(views)
     view_rows = math.ceil(n_views / _VIEWS_PER_ROW)
-    top_height, view_height = 4.2, 3.6
-    fig = Figure(figsize=(13.0, top_height + view_rows * view_height + 0.6), dpi=dpi_value, layout="constrained")
+    # Each view row is as tall as its tallest image at the panel width (capped), plus room for the
+    # title above and the colour legend below: constrained layout cannot shrink a fixed-aspect
+    # image to make room for decorations on its own.
+    row_heights = []
+    for row in range(view_rows):
+        in_row = views[row * _VIEWS_PER_ROW:(row + 1) * _VIEWS_PER_ROW]
+        aspect = max(mask.shape[0] / mask.shape[1] for mask, _ in in_row)
+        row_heights.append(min(max(_VIEW_PANEL_WIDTH_IN * aspect, 1.2), 3.6) + _VIEW_DECORATION_IN)
+    top_height = 4.2
+    fig = Figure(figsize=(_FIGURE_WIDTH_IN, top_height + sum(row_heights) + 0.6), dpi=dpi_value,
+                 layout="constrained")
     FigureCanvasAgg(fig)
     try:
-        grid = fig.add_gridspec(1 + view_rows, _GRID_COLUMNS,
-                                height_ratios=[top_height] + [view_height] * view_rows)
-        span = _GRID_COLUMNS // 3
-        for k, plane in enumerate(_PLANES):
-            ax = fig.add_subplot(grid[0, k * span:(k + 1) * span])
-            _draw_plane(fig, ax, plane, drawn, centerline, ground_truth, low, high, with_legend=(k == 0))
+        # Sub-figures keep the constrained layouts of the rows independent: a single grid whose
+        # columns the top panels and the view panels split differently collapses.
+        if view_rows:
+            top, bottom = fig.subfigures(2, 1, height_ratios=[top_height, sum(row_heights)])
+        else:
+            top, bottom = fig, None
+        plane_axes = top.subplots(1, len(_PLANES))
+        for k, (ax, plane) in enumerate(zip(plane_axes, _PLANES)):
+            _draw_plane(top, ax, plane, drawn, centerline, ground_truth, low, high, with_legend=(k == 0))
 
-        view_span = _GRID_COLUMNS // _VIEWS_PER_ROW
-        for row in range(view_rows):
+        row_figs = [] if bottom is None else list(np.atleast_1d(bottom.subfigures(view_rows, 1, height_ratios=row_heights)))
+        for row, row_fig in enumerate(row_figs):
             in_row = list(range(row * _VIEWS_PER_ROW, min(n_views, (row + 1) * _VIEWS_PER_ROW)))
-            start = (_GRID_COLUMNS - view_span * len(in_row)) // 2
-            for j, i in enumerate(in_row):
-                col = start + j * view_span
-                ax = fig.add_subplot(grid[1 + row, col:col + view_span])
+            if len(in_row) < _VIEWS_PER_ROW:  # centre a short row between two blank margins
+                pad = (_VIEWS_PER_ROW - len(in_row)) / 2.0
+                row_fig = row_fig.subfigures(1, 3, width_ratios=[pad, len(in_row), pad])[1]
+            view_axes = np.atleast_1d(row_fig.subplots(1, len(in_row)))
+            for ax, i in zip(view_axes, in_row):
                 score = None if score_list is None else score_list[i]
                 _draw_view(ax, views[i][0], views[i][1], name_list[i], score)
 
