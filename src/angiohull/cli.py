@@ -1,0 +1,177 @@
+"""Command-line interface: parses arguments and calls the library (``main(argv=None)``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Sequence, TextIO
+
+from . import __version__
+from .errors import AngiohullError
+from .reconstruction import DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINES
+
+__all__ = ["main", "build_parser"]
+
+
+class _Progress:
+    """Stage messages on stderr (silent with --quiet or --json, where stdout carries results)."""
+
+    def __init__(self, enabled: bool, stream: TextIO | None = None):
+        self.enabled = enabled
+        self.stream = stream if stream is not None else sys.stderr
+        self.start = time.perf_counter()
+
+    def __call__(self, message: str) -> None:
+        if self.enabled:
+            print(f"[{time.perf_counter() - self.start:6.2f} s] {message}", file=self.stream, flush=True)
+
+
+def _add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--resolution", "-k", type=int, default=DEFAULT_RESOLUTION, metavar="K",
+                        help=f"lattice points per axis of the cube of interest (default {DEFAULT_RESOLUTION})")
+    parser.add_argument("--threshold", type=float, default=DEFAULT_THRESHOLD_PX, metavar="PX",
+                        help=f"keep a point when its projection is closer than PX to a mask pixel centre (default {DEFAULT_THRESHOLD_PX})")
+    parser.add_argument("--engine", choices=sorted(ENGINES), default="kdtree",
+                        help="carving engine (default kdtree, the paper's reference)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``angiohull`` command."""
+    parser = argparse.ArgumentParser(
+        prog="angiohull",
+        description="Visual-hull reconstruction of coronary arteries from a few X-ray angiography views "
+                    "(Lau & Dziubich, Appl. Sci. 2025).",
+    )
+    parser.add_argument("--version", action="version", version=f"angiohull {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("reconstruct", help="reconstruct a study folder and write PLY, report and figure",
+                       description="Carve the visual hull of a study's masks; write vessel.ply, centerlines.ply, "
+                                   "report.json and figure.png into OUT_DIR.")
+    p.add_argument("study", type=Path, metavar="STUDY_DIR", help="study folder (or its study.yaml)")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="OUT_DIR", help="folder for the outputs")
+    _add_reconstruction_options(p)
+    p.add_argument("--no-centerlines", action="store_true", help="skip the centerline extraction")
+    p.add_argument("--no-figure", action="store_true", help="do not draw figure.png")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+
+    p = sub.add_parser("evaluate", help="reconstruct a study and score it against its ground truth",
+                       description="Reconstruct a study and score it: Dice3D, IoU3D, Chamfer (3 mm voxels), "
+                                   "Dice2D (paper protocol and plain), time of the reconstruction alone.")
+    p.add_argument("study", type=Path, metavar="STUDY_DIR", help="study folder with a ground_truth")
+    _add_reconstruction_options(p)
+    p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+
+    p = sub.add_parser("demo", help="run the whole pipeline on a built-in phantom",
+                       description="Render a built-in tubular phantom into three clinical views, reconstruct it, "
+                                   "score it, and write everything into OUT_DIR.")
+    p.add_argument("-o", "--output", type=Path, default=Path("angiohull-demo"), metavar="OUT_DIR",
+                   help="output folder (default ./angiohull-demo)")
+    _add_reconstruction_options(p)
+    return parser
+
+
+def _format_scores(scores: dict) -> str:
+    def fmt(value, unit="", digits=2):
+        return "n/a" if value is None else f"{value:.{digits}f}{unit}"
+    return (f"Dice3D {fmt(scores['dice3d'], ' %')}  IoU3D {fmt(scores['iou3d'], ' %')}  "
+            f"Chamfer {fmt(scores['chamfer_mm'], ' mm', 3)}  Dice2D(paper) {fmt(scores['dice2d_paper'], ' %')}  "
+            f"Dice2D(plain) {fmt(scores['dice2d'], ' %')}  time {fmt(scores['time_s'], ' s', 3)}  points {scores['n_points']}")
+
+
+def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, figure: bool, score: bool):
+    from . import workflow
+
+    progress(f"reconstructing {len(study.views)} views at K={options.resolution} with engine {options.engine}")
+    result = workflow.reconstruct_study(study, options)
+    progress(f"kept {len(result.vessel_points_mm)} of {result.lattice.n_points} lattice points "
+             f"(carving {result.timings_s['carve']:.3f} s)")
+    silhouettes = workflow.view_silhouettes(study, result)
+    scores = workflow.json_safe(workflow.evaluation_scores(study, result, silhouettes)) if score else None
+    report = workflow.build_report(study, result, options, silhouettes, scores)
+    if out_dir is not None:
+        paths = workflow.write_outputs(out_dir, study, result, report)
+        if figure:
+            from .viz import reconstruction_figure
+
+            progress("drawing figure.png")
+            paths["figure"] = reconstruction_figure(
+                Path(out_dir) / "figure.png", vessel_points_mm=result.vessel_points_mm, masks=study.masks,
+                reprojections=silhouettes, view_names=study.names, centerline_points_mm=result.centerline_points_mm,
+                ground_truth_mm=study.ground_truth_mm, view_scores=[v["dice2d_reprojection"] for v in report["views"]],
+                title=f"angiohull — K={options.resolution}, threshold {options.threshold_px:g} px, engine {options.engine}",
+            )
+        for name, path in paths.items():
+            progress(f"wrote {name}: {path}")
+    return result, report, scores
+
+
+def _cmd_reconstruct(args) -> int:
+    from .study import load_study
+    from .workflow import ReconstructOptions
+
+    progress = _Progress(not args.quiet)
+    study = load_study(args.study)
+    options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines)
+    _, report, _ = _run_study(study, options, args.output, progress, figure=not args.no_figure, score=False)
+    if not args.quiet:
+        per_view = ", ".join(f"{v['name']} {v['dice2d_reprojection']:.1f} %" for v in report["views"])
+        print(f"{report['n_vessel_points']} vessel points, {report['n_centerline_points']} centerline points; "
+              f"reprojection Dice2D: {per_view}")
+    return 0
+
+
+def _cmd_evaluate(args) -> int:
+    from .study import load_study
+    from .workflow import ReconstructOptions
+
+    progress = _Progress(not args.json)
+    study = load_study(args.study)
+    if study.ground_truth_mm is None:
+        raise AngiohullError(f"{args.study}: the study has no ground truth; add 'ground_truth: gt.npy' to its study.yaml")
+    options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=False)
+    _, _, scores = _run_study(study, options, None, progress, figure=False, score=True)
+    if args.json:
+        print(json.dumps(scores))
+    else:
+        print(_format_scores(scores))
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    from .demo import write_demo_study
+    from .study import load_study
+    from .workflow import ReconstructOptions
+
+    progress = _Progress(True)
+    out = args.output
+    progress("rendering the built-in tubular phantom into three clinical views")
+    study_yaml = write_demo_study(out / "study")
+    progress(f"wrote the study: {study_yaml}")
+    study = load_study(study_yaml)
+    options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=True)
+    _, report, scores = _run_study(study, options, out, progress, figure=True, score=True)
+    print(_format_scores(scores))
+    print(f"outputs in {out}/: vessel.ply, centerlines.ply, report.json, figure.png; the study is in {out}/study/")
+    return 0
+
+
+_COMMANDS = {"reconstruct": _cmd_reconstruct, "evaluate": _cmd_evaluate, "demo": _cmd_demo}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``angiohull`` command; returns the exit status (0 ok, 2 bad input)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return _COMMANDS[args.command](args)
+    except AngiohullError as error:
+        print(f"angiohull {args.command}: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

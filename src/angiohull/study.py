@@ -1,0 +1,603 @@
+"""The study folder (DESIGN.md, "Study folder"): ``study.yaml``, masks and optional ground truth.
+
+A study is a folder with a ``study.yaml``::
+
+    angiohull: 1                      # format version
+    views:
+      - name: RAO30_CRA30             # optional, defaults to the mask's stem
+        mask: masks/view0.png         # PNG/TIFF/NPY; nonzero = vessel; shape = (rows, cols)
+        carm: {primary_deg: -30, secondary_deg: 30, sid_mm: 1200, sod_mm: 800,
+               pixel_spacing_mm: [0.35, 0.35]}
+      - mask: masks/view1.png
+        projection_matrix: [[...], [...], [...]]   # 3x4
+    ground_truth: gt.npy              # optional: (N, 3) points in mm (.npy or .ply)
+
+Paths are relative to the folder. :func:`load_study` checks everything and reports every problem
+it finds in one :class:`~angiohull.errors.StudyError`, one line per problem, each line
+``<path to study.yaml>: <field>: <what was expected, what was received>``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Iterable, Optional, Sequence, Union, get_args
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from . import io
+from .errors import GeometryError, StudyError
+from .geometry import CArmGeometry, Projection
+
+__all__ = ["View", "Study", "load_study", "save_study", "FORMAT_VERSION", "STUDY_FILE"]
+
+#: Version of the ``study.yaml`` format this module reads and writes (the ``angiohull:`` key).
+FORMAT_VERSION = 1
+#: File name of the study description inside a study folder.
+STUDY_FILE = "study.yaml"
+
+_SOURCES = ("carm", "projection_matrix", "dicom")
+_MASK_FORMATS = {"png": ".png", "tif": ".tif", "tiff": ".tiff", "npy": ".npy"}
+_GROUND_TRUTH_FILE = "gt.npy"
+
+
+# -- in-memory study ------------------------------------------------------------------------
+def _readonly_bool(array: np.ndarray) -> np.ndarray:
+    mask = np.ascontiguousarray(array != 0)
+    mask.setflags(write=False)
+    return mask
+
+
+@dataclass(frozen=True, eq=False)
+class View:
+    """One X-ray view: its vessel mask and acquisition geometry.
+
+    Parameters
+    ----------
+    name : str
+        Unique name of the view within its study (also the mask's file stem when saved).
+    mask : array_like of bool, shape (rows, cols)
+        Vessel mask, nonzero = vessel; stored as a read-only bool copy. Its shape is the
+        detector's (rows, cols) and must equal ``projection.image_shape``.
+    projection : Projection
+        The view's 3x4 projection (mm -> pixel, ``u`` = column, ``v`` = row).
+    carm : CArmGeometry or None
+        The C-arm pose the projection was computed from, or None when the view was given as a
+        matrix. When given, ``projection`` must be exactly ``carm.projection()``.
+    source : {"carm", "projection_matrix"} or None
+        Where the geometry came from; None infers it from ``carm``.
+    mask_path : Path or None
+        The file the mask was read from, if any.
+
+    Raises
+    ------
+    StudyError
+        If the fields are inconsistent (shapes, source, carm vs projection).
+    """
+
+    name: str
+    mask: np.ndarray
+    projection: Projection
+    carm: Optional[CArmGeometry] = None
+    source: Optional[str] = None
+    mask_path: Optional[Path] = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise StudyError(f"view name must be a non-empty string, got {self.name!r}")
+        where = f"view {self.name!r}"
+        mask = np.asarray(self.mask)
+        if mask.ndim != 2 or mask.dtype.kind not in "biuf":
+            raise StudyError(f"{where}: mask must be a 2D (rows, cols) numeric array, got shape {mask.shape}, dtype {mask.dtype}")
+        if not isinstance(self.projection, Projection):
+            raise StudyError(f"{where}: projection must be a Projection, got {type(self.projection).__name__}")
+        if mask.shape != self.projection.image_shape:
+            raise StudyError(f"{where}: mask shape {mask.shape} differs from the projection's image_shape {self.projection.image_shape}")
+        source = self.source if self.source is not None else ("carm" if self.carm is not None else "projection_matrix")
+        self._check_source(source, where)
+        object.__setattr__(self, "mask", _readonly_bool(mask))
+        object.__setattr__(self, "source", source)
+        object.__setattr__(self, "mask_path", None if self.mask_path is None else Path(self.mask_path))
+
+    def _check_source(self, source: str, where: str) -> None:
+        if source not in ("carm", "projection_matrix"):
+            raise StudyError(f"{where}: source must be 'carm' or 'projection_matrix', got {source!r}")
+        if (source == "carm") != (self.carm is not None):
+            raise StudyError(f"{where}: source {source!r} needs carm {'given' if source == 'carm' else 'None'}, got {self.carm!r}")
+        if self.carm is not None:
+            if not isinstance(self.carm, CArmGeometry):
+                raise StudyError(f"{where}: carm must be a CArmGeometry, got {type(self.carm).__name__}")
+            if not np.array_equal(self.carm.projection().matrix, self.projection.matrix):
+                raise StudyError(f"{where}: projection is not carm.projection(); build the view with View.from_carm")
+
+    @classmethod
+    def from_carm(cls, name: str, mask: Any, carm: CArmGeometry, *, mask_path: Optional[Path] = None) -> "View":
+        """A view whose projection is ``carm.projection()``; ``carm.image_shape`` must be the mask's."""
+        return cls(name=name, mask=mask, projection=carm.projection(), carm=carm, source="carm", mask_path=mask_path)
+
+    @classmethod
+    def from_matrix(cls, name: str, mask: Any, matrix: Any, *, mask_path: Optional[Path] = None) -> "View":
+        """A view given by a 3x4 projection matrix; the image shape is the mask's shape."""
+        shape = np.shape(mask)
+        try:
+            projection = Projection(matrix, shape)  # type: ignore[arg-type]
+        except GeometryError as exc:
+            raise StudyError(f"view {name!r}: {exc}") from None
+        return cls(name=name, mask=mask, projection=projection, source="projection_matrix", mask_path=mask_path)
+
+
+@dataclass(frozen=True, eq=False)
+class Study:
+    """A set of views and, optionally, the ground truth they were made from.
+
+    Parameters
+    ----------
+    root : Path or None
+        The study folder, when the study was read from one.
+    views : tuple of View
+        At least one view, with unique names.
+    ground_truth_mm : ndarray of float64, shape (N, 3), or None
+        Ground-truth points in mm (world frame of DESIGN.md), stored read-only.
+    ground_truth_path : Path or None
+        The file the ground truth was read from.
+    """
+
+    root: Optional[Path]
+    views: tuple[View, ...]
+    ground_truth_mm: Optional[np.ndarray] = None
+    ground_truth_path: Optional[Path] = None
+
+    def __post_init__(self) -> None:
+        views = tuple(self.views)
+        _check_views(views, "study")
+        object.__setattr__(self, "views", views)
+        if self.ground_truth_mm is not None:
+            points = _points(self.ground_truth_mm, "study: ground_truth_mm")
+            points.setflags(write=False)
+            object.__setattr__(self, "ground_truth_mm", points)
+
+    @property
+    def projections(self) -> tuple[Projection, ...]:
+        """The views' projections, in order."""
+        return tuple(view.projection for view in self.views)
+
+    @property
+    def masks(self) -> tuple[np.ndarray, ...]:
+        """The views' bool masks (rows, cols), in order."""
+        return tuple(view.mask for view in self.views)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The views' names, in order."""
+        return tuple(view.name for view in self.views)
+
+
+def _check_views(views: Sequence[Any], where: str) -> None:
+    if not views:
+        raise StudyError(f"{where}: needs at least one view, got none")
+    for index, view in enumerate(views):
+        if not isinstance(view, View):
+            raise StudyError(f"{where}: views[{index}] must be a View, got {type(view).__name__}")
+    names = [view.name for view in views]
+    duplicates = sorted({name for name in names if names.count(name) > 1})
+    if duplicates:
+        raise StudyError(f"{where}: view names must be unique, got duplicates {duplicates}")
+
+
+def _points(points: Any, where: str) -> np.ndarray:
+    array = np.array(points, dtype=np.float64)
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise StudyError(f"{where}: expected an (N, 3) array of x, y, z in mm, got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise StudyError(f"{where}: contains non-finite values (nan or inf); expected finite mm")
+    return array
+
+
+# -- study.yaml schema ----------------------------------------------------------------------
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+_Pair = Annotated[list[float], Field(min_length=2, max_length=2)]
+_Text = Annotated[str, Field(min_length=1)]
+
+
+class _CArmEntry(_Strict):
+    primary_deg: float  # LAO +, RAO -
+    secondary_deg: float  # CRA +, CAU -
+    sid_mm: float
+    sod_mm: float
+    pixel_spacing_mm: _Pair  # [row, col] at the detector
+    principal_offset_px: Optional[_Pair] = None  # [du, dv]
+
+
+class _ViewEntry(_Strict):
+    name: Optional[_Text] = None
+    mask: _Text
+    carm: Optional[_CArmEntry] = None
+    projection_matrix: Optional[list[list[float]]] = None
+    dicom: Optional[_Text] = None
+    frame: Optional[int] = None
+
+    @field_validator("projection_matrix")
+    @classmethod
+    def _three_by_four(cls, rows: Optional[list[list[float]]]) -> Optional[list[list[float]]]:
+        if rows is None:
+            return rows
+        lengths = [len(row) for row in rows]
+        if lengths != [4, 4, 4]:
+            raise ValueError(f"expected a 3x4 matrix (3 rows of 4 numbers), got {len(rows)} rows of lengths {lengths}")
+        if not all(math.isfinite(value) for row in rows for value in row):
+            raise ValueError(f"expected 12 finite numbers, got non-finite values (nan or inf): {rows}")
+        return rows
+
+    @field_validator("dicom")
+    @classmethod
+    def _no_dicom_yet(cls, value: Optional[str]) -> Optional[str]:
+        if value is not None:
+            raise ValueError(
+                f"DICOM geometry is not supported in this version of angiohull yet (got dicom: {value!r}); "
+                "give carm: (primary_deg, secondary_deg, sid_mm, sod_mm, pixel_spacing_mm) or "
+                "projection_matrix: (3x4) instead"
+            )
+        return value
+
+    @model_validator(mode="after")
+    def _one_source(self) -> "_ViewEntry":
+        given = [key for key in _SOURCES if getattr(self, key) is not None]
+        if len(given) != 1:
+            found = "no geometry source" if not given else f"{len(given)} geometry sources ({', '.join(given)})"
+            raise ValueError(f"view {self.resolved_name!r} has {found}; give exactly one of carm:, projection_matrix:, dicom:")
+        if self.frame is not None and self.dicom is None:
+            raise ValueError(f"view {self.resolved_name!r}: frame: is only used with dicom:, got frame: {self.frame}")
+        return self
+
+    @property
+    def resolved_name(self) -> str:
+        return self.name if self.name is not None else Path(self.mask).stem
+
+
+class _StudyFile(_Strict):
+    angiohull: int
+    views: Annotated[list[_ViewEntry], Field(min_length=1)]
+    ground_truth: Optional[_Text] = None
+
+    @field_validator("angiohull")
+    @classmethod
+    def _version(cls, value: int) -> int:
+        if value != FORMAT_VERSION:
+            raise ValueError(
+                f"unsupported study format version {value}; this version of angiohull reads "
+                f"version {FORMAT_VERSION} (write 'angiohull: {FORMAT_VERSION}', or use a newer angiohull)"
+            )
+        return value
+
+    @field_validator("views")
+    @classmethod
+    def _unique_names(cls, views: list[_ViewEntry]) -> list[_ViewEntry]:
+        where: dict[str, list[int]] = {}
+        for index, view in enumerate(views):
+            where.setdefault(view.resolved_name, []).append(index)
+        clashes = [f"{name!r} is used by views {indices}" for name, indices in where.items() if len(indices) > 1]
+        if clashes:
+            raise ValueError(
+                "view names must be unique: " + "; ".join(clashes)
+                + " (a name defaults to the mask file's stem; give name: to tell them apart)"
+            )
+        return views
+
+
+# -- error messages -------------------------------------------------------------------------
+def _format_loc(loc: Iterable[Union[str, int]]) -> str:
+    text = ""
+    for part in loc:
+        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
+    return text
+
+
+def _find_model(annotation: Any) -> Optional[type[BaseModel]]:
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for argument in get_args(annotation):
+        found = _find_model(argument)
+        if found is not None:
+            return found
+    return None
+
+
+def _model_at(loc: Sequence[Union[str, int]]) -> Optional[type[BaseModel]]:
+    """The schema model that holds the keys at ``loc`` (list indices are skipped)."""
+    model: Optional[type[BaseModel]] = _StudyFile
+    for part in loc:
+        if isinstance(part, str) and model is not None:
+            field = model.model_fields.get(part)
+            model = None if field is None else _find_model(field.annotation)
+    return model
+
+
+def _short(value: Any, limit: int = 80) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _received(value: Any) -> str:
+    hint = ""
+    if isinstance(value, str):
+        try:
+            number = yaml.safe_dump(float(value)).splitlines()[0]
+            hint = f" (YAML read this as text; write the number as {number})"
+        except ValueError:
+            pass
+    return f"got {_short(value)} ({type(value).__name__}){hint}"
+
+
+def _pydantic_problem(error: Any) -> tuple[str, str]:
+    """``(field, message)`` for one pydantic error."""
+    loc, kind = tuple(error["loc"]), error["type"]
+    if kind in ("extra_forbidden", "invalid_key"):
+        model = _model_at(loc[:-1])
+        allowed = "allowed keys here: " + (", ".join(model.model_fields) if model is not None else "?")
+        if kind == "extra_forbidden":
+            return _format_loc(loc), f"unknown key; {allowed}"
+        return _format_loc(loc[:-1]) or "(top level)", f"key {loc[-1]!r} is not text; {allowed}"
+    if kind in ("model_type", "dict_type"):
+        model = _model_at(loc)
+        keys = ", ".join(model.model_fields) if model is not None else "?"
+        return _format_loc(loc), f"expected a mapping with keys from: {keys}; {_received(error['input'])}"
+    if kind == "missing":
+        return _format_loc(loc), "required key is missing"
+    if kind == "value_error":
+        return _format_loc(loc), str(error["ctx"]["error"])
+    return _format_loc(loc), f"{error['msg']}, {_received(error['input'])}"
+
+
+class _Problem(Exception):
+    """One problem with a field of study.yaml (collected, then raised as one StudyError)."""
+
+    def __init__(self, field: str, message: str):
+        super().__init__(message)
+        self.field, self.message = field, message
+
+
+def _raise_problems(yaml_path: Path, problems: Sequence[tuple[str, str]]) -> None:
+    if problems:
+        raise StudyError("\n".join(f"{yaml_path}: {field}: {message}" for field, message in problems))
+
+
+# -- loading --------------------------------------------------------------------------------
+def _study_file(folder: Union[str, Path]) -> Path:
+    path = Path(folder)
+    yaml_path = path / STUDY_FILE if path.is_dir() else path
+    if not yaml_path.is_file():
+        raise StudyError(
+            f"{yaml_path}: study file not found; expected a study folder containing {STUDY_FILE} "
+            f"(or the path to the {STUDY_FILE} itself)"
+        )
+    return yaml_path
+
+
+def _parse_yaml(yaml_path: Path) -> dict[str, Any]:
+    try:
+        data = yaml.safe_load(yaml_path.read_bytes())
+    except OSError as exc:
+        raise StudyError(f"{yaml_path}: cannot read the study file ({exc})") from None
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        context = f" ({exc.context})" if exc.context else ""
+        raise StudyError(f"{yaml_path}: invalid YAML{where}: {exc.problem}{context}") from None
+    except yaml.YAMLError as exc:
+        raise StudyError(f"{yaml_path}: invalid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        got = "an empty file" if data is None else f"a {type(data).__name__}"
+        raise StudyError(
+            f"{yaml_path}: expected a YAML mapping with keys angiohull, views and optionally "
+            f"ground_truth, got {got}"
+        )
+    return data
+
+
+def _validate(yaml_path: Path, data: dict[str, Any]) -> _StudyFile:
+    try:
+        return _StudyFile.model_validate(data)
+    except ValidationError as exc:
+        _raise_problems(yaml_path, [_pydantic_problem(error) for error in exc.errors(include_url=False)])
+        raise  # unreachable: a ValidationError always has at least one error
+
+
+def _geometry(entry: _ViewEntry, shape: tuple[int, int], field: str) -> tuple[Projection, Optional[CArmGeometry]]:
+    try:
+        if entry.carm is None:
+            return Projection(np.array(entry.projection_matrix, dtype=np.float64), shape), None
+        carm = CArmGeometry(
+            primary_deg=entry.carm.primary_deg,
+            secondary_deg=entry.carm.secondary_deg,
+            sid_mm=entry.carm.sid_mm,
+            sod_mm=entry.carm.sod_mm,
+            pixel_spacing_mm=tuple(entry.carm.pixel_spacing_mm),
+            image_shape=shape,
+            principal_offset_px=tuple(entry.carm.principal_offset_px or (0.0, 0.0)),
+        )
+        return carm.projection(), carm
+    except GeometryError as exc:
+        raise _Problem(field, str(exc)) from None
+
+
+def _load_view(index: int, entry: _ViewEntry, root: Path) -> View:
+    name, where = entry.resolved_name, f"views[{index}]"
+    mask_path = root / entry.mask
+    try:
+        mask = io.read_mask(mask_path)
+    except StudyError as exc:
+        raise _Problem(f"{where}.mask", f"view {name!r}: {exc}") from None
+    if not mask.any():
+        raise _Problem(
+            f"{where}.mask",
+            f"view {name!r}: {mask_path}: the mask has no vessel pixel (all {mask.shape[0]}x{mask.shape[1]} "
+            "pixels are zero); expected nonzero vessel pixels",
+        )
+    source = "carm" if entry.carm is not None else "projection_matrix"
+    projection, carm = _geometry(entry, mask.shape, f"{where}.{source}")
+    return View(name=name, mask=mask, projection=projection, carm=carm, source=source, mask_path=mask_path)
+
+
+def _load_ground_truth(relative: str, root: Path) -> tuple[np.ndarray, Path]:
+    path = root / relative
+    try:
+        return io.read_points(path), path
+    except StudyError as exc:
+        raise _Problem("ground_truth", str(exc)) from None
+
+
+def load_study(folder: Union[str, Path]) -> Study:
+    """Read and check a study folder.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The study folder, or the path to its ``study.yaml``. Paths inside are relative to the
+        folder that holds the YAML file.
+
+    Returns
+    -------
+    Study
+        Views in file order, each with a bool mask (rows, cols) and its projection (for ``carm:``
+        views built with ``image_shape = mask.shape``), and the ground truth (N, 3) in mm if given.
+
+    Raises
+    ------
+    StudyError
+        One error listing every problem found, one line each, as
+        ``<path to study.yaml>: <field, e.g. views[1].carm.sid_mm>: <expected, received>``:
+        unreadable or malformed YAML, unknown or missing keys, wrong types, a format version other
+        than 1, zero or two geometry sources in a view, ``dicom:`` (not supported yet), duplicate
+        view names, missing, unreadable or empty masks, invalid C-arm parameters or matrices, and
+        an unreadable ground truth.
+    """
+    yaml_path = _study_file(folder)
+    entries = _validate(yaml_path, _parse_yaml(yaml_path))
+    root = yaml_path.parent
+    views: list[View] = []
+    problems: list[tuple[str, str]] = []
+    ground_truth, ground_truth_path = None, None
+    for index, entry in enumerate(entries.views):
+        try:
+            views.append(_load_view(index, entry, root))
+        except _Problem as problem:
+            problems.append((problem.field, problem.message))
+    if entries.ground_truth is not None:
+        try:
+            ground_truth, ground_truth_path = _load_ground_truth(entries.ground_truth, root)
+        except _Problem as problem:
+            problems.append((problem.field, problem.message))
+    _raise_problems(yaml_path, problems)
+    return Study(root=root, views=tuple(views), ground_truth_mm=ground_truth, ground_truth_path=ground_truth_path)
+
+
+# -- saving ---------------------------------------------------------------------------------
+def _carm_entry(carm: CArmGeometry) -> dict[str, Any]:
+    entry: dict[str, Any] = {
+        "primary_deg": float(carm.primary_deg),
+        "secondary_deg": float(carm.secondary_deg),
+        "sid_mm": float(carm.sid_mm),
+        "sod_mm": float(carm.sod_mm),
+        "pixel_spacing_mm": [float(value) for value in carm.pixel_spacing_mm],
+    }
+    if any(value != 0.0 for value in carm.principal_offset_px):
+        entry["principal_offset_px"] = [float(value) for value in carm.principal_offset_px]
+    return entry
+
+
+def _view_entry(view: View, mask_file: str) -> dict[str, Any]:
+    entry: dict[str, Any] = {"name": view.name, "mask": mask_file}
+    if view.carm is not None:
+        entry["carm"] = _carm_entry(view.carm)
+    else:  # tolist() gives Python floats, which PyYAML writes with repr: exact round trip
+        entry["projection_matrix"] = view.projection.matrix.tolist()
+    return entry
+
+
+def _check_file_name(name: str, where: str) -> None:
+    if name in (".", "..") or Path(name).name != name or "\\" in name:
+        raise StudyError(f"{where}: view name {name!r} cannot be a file name; use a name without path separators")
+
+
+def save_study(
+    folder: Union[str, Path],
+    views: Iterable[View],
+    *,
+    ground_truth_mm: Optional[Any] = None,
+    mask_format: str = "png",
+) -> Path:
+    """Write a study folder that :func:`load_study` reads back exactly.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The study folder; created if missing. An existing ``study.yaml``, masks of the same names
+        and ``gt.npy`` are overwritten.
+    views : iterable of View
+        At least one, with unique names usable as file names. ``carm`` views are written as
+        ``carm:`` (plain floats), the others as ``projection_matrix:`` (every float at full
+        precision). Masks must contain at least one vessel pixel.
+    ground_truth_mm : array_like, shape (N, 3), optional
+        Ground-truth points in mm, written to ``gt.npy``.
+    mask_format : {"png", "tiff", "tif", "npy"}
+        Format of ``masks/<name>.<ext>``.
+
+    Returns
+    -------
+    Path
+        The written ``study.yaml``.
+
+    Raises
+    ------
+    StudyError
+        For bad arguments (no views, duplicate or unusable names, empty masks, bad ground truth,
+        unknown mask format) or a file that cannot be written.
+    """
+    folder = Path(folder)
+    views = tuple(views)
+    _check_views(views, f"{folder}: save_study")
+    suffix = _MASK_FORMATS.get(mask_format)
+    if suffix is None:
+        raise StudyError(f"{folder}: mask_format must be one of {sorted(_MASK_FORMATS)}, got {mask_format!r}")
+    for view in views:
+        _check_file_name(view.name, f"{folder}: save_study")
+        if not view.mask.any():
+            raise StudyError(f"{folder}: save_study: view {view.name!r} has an empty mask (no vessel pixel)")
+    points = None if ground_truth_mm is None else _points(ground_truth_mm, f"{folder}: ground_truth_mm")
+    try:
+        (folder / "masks").mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StudyError(f"{folder}: cannot create the study folder ({exc})") from None
+    document: dict[str, Any] = {"angiohull": FORMAT_VERSION, "views": []}
+    for view in views:
+        mask_file = f"masks/{view.name}{suffix}"
+        io.write_mask(folder / mask_file, view.mask)
+        document["views"].append(_view_entry(view, mask_file))
+    if points is not None:
+        _save_points(folder / _GROUND_TRUTH_FILE, points)
+        document["ground_truth"] = _GROUND_TRUTH_FILE
+    return _write_yaml(folder / STUDY_FILE, document)
+
+
+def _save_points(path: Path, points: np.ndarray) -> None:
+    try:
+        with open(path, "wb") as handle:
+            np.save(handle, points, allow_pickle=False)
+    except OSError as exc:
+        raise StudyError(f"{path}: cannot write the ground truth ({exc})") from None
+
+
+def _write_yaml(yaml_path: Path, document: dict[str, Any]) -> Path:
+    text = "# angiohull study (DESIGN.md, 'Study folder'); paths are relative to this folder\n"
+    text += yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=4096)
+    try:
+        yaml_path.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise StudyError(f"{yaml_path}: cannot write the study file ({exc})") from None
+    return yaml_path

@@ -1,0 +1,22 @@
+"""Shared fixtures. Data under ../shared (beside the checkout) is optional: tests that need it skip."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+
+def shared_root() -> Path:
+    """``$ANGIOHULL_SHARED`` or the ``shared`` folder beside the repository checkout."""
+    env = os.environ.get("ANGIOHULL_SHARED")
+    return Path(env) if env else Path(__file__).resolve().parents[2] / "shared"
+
+
+@pytest.fixture(scope="session")
+def peer_synthetic_dir() -> Path:
+    """The authors' 48 peer-synthetic studies, or a skip when ../shared is absent."""
+    folder = shared_root() / "benchmarks" / "peer-synthetic"
+    if not (folder / "peer_results.csv").is_file():
+        pytest.skip(f"peer-synthetic benchmark not found at {folder} (clone the project beside ../shared, "
+                    f"or set ANGIOHULL_SHARED)")
+    return folder

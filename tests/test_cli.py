@@ -1,0 +1,115 @@
+"""The command line, in-process through ``main(argv)``."""
+
+import json
+
+import numpy as np
+import pytest
+
+from angiohull.cli import main
+from angiohull.geometry import CArmGeometry
+from angiohull.io import read_points
+from angiohull.study import View, save_study
+
+
+def ball_study(folder, *, corrupt=None):
+    """A ball of radius 10 mm at the isocentre seen by two perpendicular views, exact masks."""
+    views = []
+    for name, primary in (("ap", 0.0), ("lao90", 90.0)):
+        carm = CArmGeometry(primary, 0.0, 1200.0, 800.0, (0.7, 0.7), (128, 128))
+        p = carm.projection()
+        v, u = np.mgrid[0:128, 0:128]
+        d = np.stack([u.ravel(), v.ravel(), np.ones(u.size)], 1) @ np.linalg.inv(p.matrix[:, :3]).T
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        rel = -p.camera_centre_mm
+        mask = ((rel @ rel - (d @ rel) ** 2) <= 100.0).reshape(128, 128)
+        views.append(View.from_carm(name, mask, carm))
+    rng = np.random.default_rng(0)
+    gt = rng.normal(size=(4000, 3))
+    gt = 10.0 * gt / np.linalg.norm(gt, axis=1, keepdims=True)
+    return save_study(folder, views, ground_truth_mm=gt)
+
+
+def test_reconstruct_writes_ply_report_and_figure(tmp_path, capsys):
+    study = ball_study(tmp_path / "study")
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(study.parent), "-o", str(out), "--resolution", "40"]) == 0
+    for name in ("vessel.ply", "centerlines.ply", "report.json", "figure.png"):
+        assert (out / name).is_file(), name
+    report = json.loads((out / "report.json").read_text())
+    vessel = read_points(out / "vessel.ply")
+    assert report["n_vessel_points"] == len(vessel) > 0
+    assert report["options"] == {"resolution": 40, "threshold_px": 1.0, "engine": "kdtree", "centerlines": True}
+    assert [v["name"] for v in report["views"]] == ["ap", "lao90"]
+    assert all(v["dice2d_reprojection"] > 80 for v in report["views"])
+    assert report["views"][1]["carm"]["clinical"] == "LAO 90 CRA 0"
+    assert set(report["timings_s"]) >= {"cube", "carve", "centerlines"}
+    assert np.linalg.norm(vessel, axis=1).max() < 10 * np.sqrt(2) + 1.5
+    assert "reprojection Dice2D" in capsys.readouterr().out
+
+
+def test_reconstruct_without_centerlines_and_figure(tmp_path):
+    study = ball_study(tmp_path / "study")
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(study), "-o", str(out), "-k", "20", "--no-centerlines", "--no-figure", "-q"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["report.json", "vessel.ply"]
+
+
+def test_evaluate_json_prints_exactly_one_object(tmp_path, capsys):
+    study = ball_study(tmp_path / "study")
+    assert main(["evaluate", str(study.parent), "--resolution", "40", "--json"]) == 0
+    captured = capsys.readouterr()
+    scores = json.loads(captured.out)
+    assert set(scores) == {"dice3d", "iou3d", "chamfer_mm", "dice2d_paper", "dice2d", "time_s", "n_points"}
+    assert 0 < scores["dice3d"] <= 100 and scores["chamfer_mm"] > 0 and scores["n_points"] > 0
+    assert captured.out.count("\n") == 1
+
+
+def test_evaluate_text_output(tmp_path, capsys):
+    study = ball_study(tmp_path / "study")
+    assert main(["evaluate", str(study.parent), "-k", "30"]) == 0
+    assert "Dice3D" in capsys.readouterr().out
+
+
+def test_missing_mask_is_a_clear_error_not_a_traceback(tmp_path, capsys):
+    study = ball_study(tmp_path / "study")
+    (study.parent / "masks" / "ap.png").unlink()
+    assert main(["reconstruct", str(study.parent), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "ap.png" in err and "Traceback" not in err
+
+
+def test_evaluate_without_ground_truth_says_how_to_add_it(tmp_path, capsys):
+    study = ball_study(tmp_path / "study")
+    text = study.read_text().replace("ground_truth: gt.npy", "")
+    study.write_text(text)
+    assert main(["evaluate", str(study.parent)]) == 2
+    assert "ground_truth" in capsys.readouterr().err
+
+
+def test_empty_hull_is_reported_with_the_view(tmp_path, capsys):
+    study = ball_study(tmp_path / "study")
+    # move the ball in one view to a corner: the two cones no longer meet
+    from angiohull.io import read_mask, write_mask
+    mask = read_mask(study.parent / "masks" / "lao90.png")
+    write_mask(study.parent / "masks" / "lao90.png", np.roll(mask, (60, 60), axis=(0, 1)))
+    assert main(["reconstruct", str(study.parent), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "lao90" in err and "calibration" in err
+
+
+@pytest.mark.parametrize("argv", [["reconstruct"], ["evaluate", "x", "--engine", "nope"], ["frobnicate"]])
+def test_bad_arguments_exit_with_usage(argv):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+
+
+def test_demo_writes_everything_and_prints_scores(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "-o", str(out)]) == 0
+    for name in ("vessel.ply", "centerlines.ply", "report.json", "figure.png", "study/study.yaml", "study/gt.npy"):
+        assert (out / name).is_file(), name
+    printed = capsys.readouterr().out
+    assert "Dice3D" in printed and "Chamfer" in printed
+    report = json.loads((out / "report.json").read_text())
+    assert report["scores"]["dice3d"] > 60
