@@ -11,7 +11,7 @@ from typing import Sequence, TextIO
 
 from . import __version__
 from .errors import AngiohullError
-from .reconstruction import DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINES
+from .reconstruction import AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES
 
 __all__ = ["main", "build_parser"]
 
@@ -34,8 +34,9 @@ def _add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
                         help=f"lattice points per axis of the cube of interest (default {DEFAULT_RESOLUTION})")
     parser.add_argument("--threshold", type=float, default=DEFAULT_THRESHOLD_PX, metavar="PX",
                         help=f"keep a point when its projection is closer than PX to a mask pixel centre (default {DEFAULT_THRESHOLD_PX})")
-    parser.add_argument("--engine", choices=sorted(ENGINES), default="kdtree",
-                        help="carving engine (default kdtree, the paper's reference)")
+    parser.add_argument("--engine", choices=ENGINE_CHOICES, default="auto",
+                        help=f"carving engine: kdtree (the paper's reference), lookup, octree; all keep the same "
+                             f"points; auto (default) = {AUTO_ENGINE}, the fastest")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -102,7 +103,7 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
                 Path(out_dir) / "figure.png", vessel_points_mm=result.vessel_points_mm, masks=study.masks,
                 reprojections=silhouettes, view_names=study.names, centerline_points_mm=result.centerline_points_mm,
                 ground_truth_mm=study.ground_truth_mm, view_scores=[v["dice2d_reprojection"] for v in report["views"]],
-                title=f"angiohull — K={options.resolution}, threshold {options.threshold_px:g} px, engine {options.engine}",
+                title=f"angiohull — K={options.resolution}, threshold {options.threshold_px:g} px, engine {result.engine}",
             )
         for name, path in paths.items():
             progress(f"wrote {name}: {path}")

@@ -32,7 +32,7 @@ class ReconstructOptions:
 
     resolution: int = DEFAULT_RESOLUTION  # K, lattice points per axis
     threshold_px: float = DEFAULT_THRESHOLD_PX  # strict distance threshold, px
-    engine: str = "kdtree"  # carving engine
+    engine: str = "auto"  # carving engine (auto: the fastest exact one)
     centerlines: bool = True  # extract centerline points
 
 
@@ -109,7 +109,8 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
             "geometry_source": view.source,
             "projection_matrix": view.projection.matrix.tolist(),
             "camera_centre_mm": view.projection.camera_centre_mm.tolist(),
-            "survivors_after_view": result.survivors_per_view[i],
+            "applied_as": result.view_order.index(i),
+            "survivors_after_view": result.survivors_per_view[result.view_order.index(i)],
             "dice2d_reprojection": dice2d(silhouette, view.mask),
             "dice2d_paper_dilation_px": paper_dilation_side_px(None if view.carm is None else view.carm.pixel_spacing_mm[1]),
         }
@@ -124,6 +125,7 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
         "study": str(study.root) if study.root is not None else None,
         "options": {"resolution": options.resolution, "threshold_px": options.threshold_px,
                     "engine": options.engine, "centerlines": options.centerlines},
+        "engine": result.engine,
         "cube_of_interest": {"half_edge_mm": result.lattice.half_edge_mm, "resolution": result.lattice.resolution,
                              "lattice_spacing_mm": result.lattice_spacing_mm, "n_lattice_points": result.lattice.n_points},
         "timings_s": dict(result.timings_s),

@@ -17,6 +17,7 @@ from ..geometry import Projection, cube_half_edge_mm
 from .centerlines import extract_centerlines, skeletonise
 from .cube import MAX_DENSE_RESOLUTION, Lattice
 from .engines import ENGINES, CarveOutcome
+from . import hierarchical  # noqa: F401  (registers the lookup and octree engines)
 
 __all__ = [
     "reconstruct",
@@ -28,6 +29,8 @@ __all__ = [
     "skeletonise",
     "DEFAULT_RESOLUTION",
     "DEFAULT_THRESHOLD_PX",
+    "AUTO_ENGINE",
+    "ENGINE_CHOICES",
     "MAX_DENSE_RESOLUTION",
 ]
 
@@ -35,6 +38,10 @@ DEFAULT_RESOLUTION = 100
 """K of the paper's experiments."""
 DEFAULT_THRESHOLD_PX = 1.0
 """The paper's distance threshold, pixels (strict)."""
+AUTO_ENGINE = "octree"
+"""What ``engine="auto"`` runs: the fastest engine that keeps exactly the reference's points."""
+ENGINE_CHOICES = ("auto", *sorted(ENGINES))
+"""Names accepted by ``reconstruct(engine=...)`` and the CLI's ``--engine``."""
 
 
 @dataclass(frozen=True)
@@ -46,8 +53,9 @@ class ReconstructionResult:
     lattice: Lattice  # the cube of interest that was carved
     engine: str  # name of the carving engine
     threshold_px: float  # distance threshold, px (strict)
-    view_names: tuple[str, ...]  # names of the views, in the order applied
-    survivors_per_view: tuple[int, ...]  # points alive after each view
+    view_names: tuple[str, ...]  # names of the views, as given
+    survivors_per_view: tuple[int, ...]  # points alive after each view, in the order applied
+    view_order: tuple[int, ...]  # indices of the views in the order the engine applied them
     timings_s: dict[str, float] = field(default_factory=dict)  # seconds per stage: cube, carve, centerlines, reconstruction
 
     @property
@@ -90,20 +98,23 @@ def _check_inputs(projections: Sequence[Projection], masks: Sequence[np.ndarray]
 
 
 def _empty_hull_error(outcome: CarveOutcome, names: tuple[str, ...], lattice: Lattice) -> EmptyHullError:
+    order = outcome.order if outcome.order is not None else tuple(range(len(names)))
     counts = (lattice.n_points,) + outcome.survivors_per_view
-    view = next(i for i, n in enumerate(outcome.survivors_per_view) if n == 0)
+    step = next(i for i, n in enumerate(outcome.survivors_per_view) if n == 0)
+    view = order[step]
+    applied = ", ".join(f"{names[i]}: {n}" for i, n in zip(order, outcome.survivors_per_view))
     return EmptyHullError(
-        f"the visual hull is empty: view {view} ({names[view]!r}) removed the last {counts[view]} points "
-        f"(survivors after each view: {list(outcome.survivors_per_view)}). The views do not agree on any "
+        f"the visual hull is empty: view {view} ({names[view]!r}) removed the last {counts[step]} points "
+        f"(survivors after each view, in the order applied: {applied}). The views do not agree on any "
         f"point: check the calibration (angles, SID/SOD, pixel spacing, image shifts) and that the masks "
         f"show the same vessels; a larger threshold_px tolerates small misalignments.",
-        view_index=view, view_name=names[view], points_before=counts[view],
+        view_index=view, view_name=names[view], points_before=counts[step],
     )
 
 
 def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
                 resolution: int = DEFAULT_RESOLUTION, threshold_px: float = DEFAULT_THRESHOLD_PX,
-                engine: str = "kdtree", centerlines: bool = True, view_names: Sequence[str] | None = None,
+                engine: str = "auto", centerlines: bool = True, view_names: Sequence[str] | None = None,
                 half_edge_mm: float | None = None, allow_empty: bool = False) -> ReconstructionResult:
     """Carve the visual hull of the masks and, optionally, its centerline points.
 
@@ -119,7 +130,8 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         A point survives a view when its projection is strictly closer than this to a mask pixel
         centre (default 1.0).
     engine : str, keyword-only
-        Name of a carving engine in :data:`ENGINES`.
+        ``"auto"`` (default: the fastest exact engine, :data:`AUTO_ENGINE`), ``"kdtree"`` (the
+        paper's reference), ``"lookup"`` or ``"octree"``; all keep exactly the same points.
     centerlines : bool, keyword-only
         Also extract centerline points (Guo–Hall skeletons).
     view_names : sequence of str, optional
@@ -135,8 +147,9 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     """
     checked_masks, names = _check_inputs(projections, masks, view_names)
     threshold = _v.positive_finite(threshold_px, "threshold_px", error=ReconstructionError)
-    if engine not in ENGINES:
-        raise ReconstructionError(f"unknown engine {engine!r}; choose one of {sorted(ENGINES)}")
+    if engine not in ENGINE_CHOICES:
+        raise ReconstructionError(f"unknown engine {engine!r}; choose one of {list(ENGINE_CHOICES)}")
+    engine = AUTO_ENGINE if engine == "auto" else engine
     timings: dict[str, float] = {}
 
     start = time.perf_counter()
@@ -165,5 +178,6 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         threshold_px=threshold,
         view_names=names,
         survivors_per_view=outcome.survivors_per_view,
+        view_order=outcome.order if outcome.order is not None else tuple(range(len(names))),
         timings_s=timings,
     )

@@ -56,8 +56,12 @@ class Lattice:
 
         Slicing lets engines walk the lattice in chunks without holding all K**3 points.
         """
-        k = self.resolution
         stop = self.n_points if stop is None else min(stop, self.n_points)
-        flat = np.arange(start, stop, dtype=np.int64)
+        return self.points_at(np.arange(start, stop, dtype=np.int64))
+
+    def points_at(self, flat_indices: np.ndarray) -> np.ndarray:
+        """Lattice points of the given C-order flat indices, shape (n, 3), mm."""
+        k = self.resolution
+        flat = np.asarray(flat_indices, dtype=np.int64)
         axis = self.axis_mm()
         return np.stack([axis[flat // (k * k)], axis[(flat // k) % k], axis[flat % k]], axis=1)

@@ -8,6 +8,13 @@ the survivors of the previous ones.
 
 ``kdtree`` is the reference: the paper's own procedure, one :class:`scipy.spatial.cKDTree` per
 view built on the mask's pixel centres and queried by every surviving point.
+
+:class:`MaskLookup` gives the same answer as the tree with constant-time work per point: the only
+pixel centres that can lie closer than ``t`` to ``(u, v)`` are those with ``|c - u| < t`` and
+``|r - v| < t``, a ``2 ceil(t) x 2 ceil(t)`` window (2 x 2 for ``t <= 1``); it reads those mask
+pixels and tests their exact distances. :func:`carve_dense_lookup` applies it to every lattice
+point (views sparsest mask first, each to the survivors of the previous ones); the ``lookup`` and
+``octree`` engines of :mod:`.hierarchical` add conservative block culling in front of it.
 """
 
 from __future__ import annotations
@@ -21,7 +28,8 @@ from scipy.spatial import cKDTree
 from ..geometry import Projection
 from .cube import Lattice
 
-__all__ = ["CarveOutcome", "ENGINES", "carve_kdtree", "mask_pixel_centres"]
+__all__ = ["CarveOutcome", "ENGINES", "carve_kdtree", "carve_dense_lookup", "mask_pixel_centres", "project_in_front",
+           "MaskLookup", "sparsest_first"]
 
 CHUNK_POINTS = 1 << 21
 """Points projected at once by the dense engines (bounds temporary memory)."""
@@ -33,6 +41,7 @@ class CarveOutcome:
 
     points_mm: np.ndarray  # (N, 3) kept lattice points, mm, in lattice order
     survivors_per_view: tuple[int, ...]  # points alive after each view, in the order applied
+    order: tuple[int, ...] | None = None  # indices of the views in the order applied (None: as given)
 
 
 def mask_pixel_centres(mask: np.ndarray) -> np.ndarray:
@@ -41,11 +50,30 @@ def mask_pixel_centres(mask: np.ndarray) -> np.ndarray:
     return np.stack([cols, rows], axis=1).astype(np.float64)
 
 
+def project_in_front(points: np.ndarray, matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates of the points in front of the source, and which points those are.
+
+    Written out element by element (no BLAS), so that every engine computes bit-identical
+    coordinates for the same point, whatever the batch size.
+
+    Returns
+    -------
+    uv : (M, 2) array
+        ``(u, v)`` of the points with ``w > 0``.
+    front : (N,) bool array
+    """
+    x, y, z = points[:, 0], points[:, 1], points[:, 2]
+    w = x * matrix[2, 0] + y * matrix[2, 1] + z * matrix[2, 2] + matrix[2, 3]
+    front = w > 0
+    x, y, z, w = x[front], y[front], z[front], w[front]
+    u = (x * matrix[0, 0] + y * matrix[0, 1] + z * matrix[0, 2] + matrix[0, 3]) / w
+    v = (x * matrix[1, 0] + y * matrix[1, 1] + z * matrix[1, 2] + matrix[1, 3]) / w
+    return np.stack([u, v], axis=1), front
+
+
 def _kept_by_view(points: np.ndarray, projection: Projection, tree: cKDTree, threshold_px: float) -> np.ndarray:
-    h = points @ projection.matrix[:, :3].T + projection.matrix[:, 3]
-    front = h[:, 2] > 0
+    uv, front = project_in_front(points, projection.matrix)
     keep = np.zeros(len(points), dtype=bool)
-    uv = h[front, :2] / h[front, 2:3]
     distance, _ = tree.query(uv, k=1, distance_upper_bound=threshold_px)
     keep[front] = distance < threshold_px
     return keep
@@ -67,7 +95,78 @@ def carve_kdtree(lattice: Lattice, projections: Sequence[Projection], masks: Seq
     return CarveOutcome(np.concatenate(kept_chunks, axis=0), tuple(survivors))
 
 
+class MaskLookup:
+    """Exact "closer than ``threshold_px`` to a mask pixel centre" test by direct pixel reads.
+
+    Parameters
+    ----------
+    mask : (rows, cols) bool array
+    threshold_px : float
+        Strict distance threshold, px.
+    """
+
+    def __init__(self, mask: np.ndarray, threshold_px: float):
+        self.threshold_px = float(threshold_px)
+        self.reach = int(np.ceil(self.threshold_px))  # window: floor(u) + (1 - reach .. reach)
+        rows, cols = mask.shape
+        self.pad = 2 * self.reach + 1
+        padded = np.zeros((rows + 2 * self.pad, cols + 2 * self.pad), dtype=bool)
+        padded[self.pad:self.pad + rows, self.pad:self.pad + cols] = mask
+        self.flat = padded.ravel()
+        self.stride = padded.shape[1]
+        self.shape = (rows, cols)
+        self.offsets = [(a, b) for b in range(1 - self.reach, self.reach + 1) for a in range(1 - self.reach, self.reach + 1)]
+
+    def near(self, uv: np.ndarray) -> np.ndarray:
+        """Bool (M,): the nearest mask pixel centre is strictly closer than the threshold."""
+        rows, cols = self.shape
+        u, v = uv[:, 0], uv[:, 1]
+        # points far outside the image map into the zero padding; non-finite ones too
+        fu = np.floor(np.clip(np.nan_to_num(u, nan=-1e9), -self.reach - 1, cols + self.reach))
+        fv = np.floor(np.clip(np.nan_to_num(v, nan=-1e9), -self.reach - 1, rows + self.reach))
+        base = (fv.astype(np.intp) + self.pad) * self.stride + (fu.astype(np.intp) + self.pad)
+        t = self.threshold_px
+        keep = np.zeros(len(uv), dtype=bool)
+        for a, b in self.offsets:
+            hit = self.flat[base + (b * self.stride + a)]
+            idx = np.flatnonzero(hit & ~keep)
+            if idx.size == 0:
+                continue
+            du = u[idx] - (fu[idx] + a)
+            dv = v[idx] - (fv[idx] + b)
+            keep[idx] = np.sqrt(du * du + dv * dv) < t  # as cKDTree: sqrt of the summed squares
+        return keep
+
+
+def sparsest_first(masks: Sequence[np.ndarray]) -> tuple[int, ...]:
+    """View order with the smallest fraction of vessel pixels first (cuts the most points early)."""
+    fractions = [np.count_nonzero(m) / m.size for m in masks]
+    return tuple(int(i) for i in np.argsort(fractions, kind="stable"))
+
+
+def carve_dense_lookup(lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
+                       threshold_px: float) -> CarveOutcome:
+    """Every lattice point, exact constant-time lookups; the same kept set as ``kdtree``.
+
+    Not a registered engine (the block-culled ``lookup`` gives the same result faster); the tests
+    use it as the dense oracle of the hierarchical engines."""
+    order = sparsest_first(masks)
+    lookups = [(projections[i].matrix, MaskLookup(masks[i], threshold_px)) for i in order]
+    survivors = [0] * len(order)
+    kept_chunks = []
+    for start in range(0, lattice.n_points, CHUNK_POINTS):
+        points = lattice.points(start, start + CHUNK_POINTS)
+        for i, (matrix, lookup) in enumerate(lookups):
+            if len(points):
+                uv, front = project_in_front(points, matrix)
+                front[front] = lookup.near(uv)
+                points = points[front]
+            survivors[i] += len(points)
+        kept_chunks.append(points)
+    return CarveOutcome(np.concatenate(kept_chunks, axis=0), tuple(survivors), order)
+
+
 Engine = Callable[..., CarveOutcome]
 
 ENGINES: dict[str, Engine] = {"kdtree": carve_kdtree}
-"""Engines by name."""
+"""Engines by name (``lookup`` and ``octree`` register from :mod:`.hierarchical`)."""
