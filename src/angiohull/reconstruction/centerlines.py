@@ -15,8 +15,21 @@ __all__ = ["skeletonise", "extract_centerlines"]
 
 
 def skeletonise(mask: np.ndarray) -> np.ndarray:
-    """One-pixel-wide skeleton of a bool mask by Guo–Hall thinning (``skimage.morphology.thin``)."""
-    return thin(np.asarray(mask, dtype=bool))
+    """One-pixel-wide skeleton of a bool mask by Guo–Hall thinning (``skimage.morphology.thin``).
+
+    Thinning only looks at 3x3 neighbourhoods and treats the outside as background, so it runs on
+    the mask's bounding box with a one-pixel background margin: the same skeleton, less work.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    skeleton = np.zeros_like(mask)
+    rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+    if len(rows) == 0:
+        return skeleton
+    r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    crop = np.zeros((r1 - r0 + 2, c1 - c0 + 2), dtype=bool)
+    crop[1:-1, 1:-1] = mask[r0:r1, c0:c1]
+    skeleton[r0:r1, c0:c1] = thin(crop)[1:-1, 1:-1]
+    return skeleton
 
 
 def extract_centerlines(points_mm: np.ndarray, projections: Sequence[Projection],
