@@ -61,3 +61,10 @@ def points_array(points: Any, name: str = "points", *, error: type[AngiohullErro
     if array.ndim != 2 or array.shape[1] != 3:
         raise error(f"{name} must be an (N, 3) array of x, y, z in mm, got shape {array.shape}")
     return array
+
+
+def readonly_copy(array: Any, dtype: Any = np.float64) -> np.ndarray:
+    """A C-contiguous copy of ``array`` as ``dtype`` that cannot be written to (for frozen records)."""
+    copy = np.array(array, dtype=dtype, copy=True, order="C")
+    copy.setflags(write=False)
+    return copy

@@ -35,12 +35,6 @@ __all__ = [
 ]
 
 
-def _readonly(array: np.ndarray) -> np.ndarray:
-    array = np.array(array, dtype=np.float64, copy=True)
-    array.setflags(write=False)
-    return array
-
-
 @dataclass(frozen=True, eq=False)
 class Projection:
     """One view: a 3x4 projection matrix and the shape of the image it projects into.
@@ -81,9 +75,9 @@ class Projection:
                 "finite camera centre (an orthographic or rank-deficient matrix is not a C-arm view)"
             )
         shape = _v.image_shape(self.image_shape, error=GeometryError)
-        object.__setattr__(self, "matrix", _readonly(matrix))
+        object.__setattr__(self, "matrix", _v.readonly_copy(matrix))
         object.__setattr__(self, "image_shape", shape)
-        object.__setattr__(self, "_centre", _readonly(-np.linalg.solve(left, matrix[:, 3])))
+        object.__setattr__(self, "_centre", _v.readonly_copy(-np.linalg.solve(left, matrix[:, 3])))
 
     # -- projecting points ------------------------------------------------------------------
     def homogeneous(self, points_mm: np.ndarray) -> np.ndarray:

@@ -28,6 +28,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from . import _validation as _v
 from . import io
 from .errors import GeometryError, StudyError
 from .geometry import CArmGeometry, Projection
@@ -46,9 +47,7 @@ _GROUND_TRUTH_FILE = "gt.npy"
 
 # -- in-memory study ------------------------------------------------------------------------
 def _readonly_bool(array: np.ndarray) -> np.ndarray:
-    mask = np.ascontiguousarray(array != 0)
-    mask.setflags(write=False)
-    return mask
+    return _v.readonly_copy(np.asarray(array) != 0, dtype=bool)
 
 
 @dataclass(frozen=True, eq=False)

@@ -39,12 +39,6 @@ _PAIR_CHUNK = 1_048_576
 _SURFACE_TOL_MM = 1e-9
 
 
-def _readonly(array: np.ndarray) -> np.ndarray:
-    array = np.array(array, dtype=np.float64, copy=True)
-    array.setflags(write=False)
-    return array
-
-
 @dataclass(frozen=True, eq=False)
 class Tube:
     """One vessel: a centreline polyline with a radius per vertex.
@@ -100,8 +94,8 @@ class Tube:
         if not np.all(np.isfinite(radius)) or np.any(radius <= 0):
             bad = radius[~(np.isfinite(radius) & (radius > 0))]
             raise AngiohullError(f"Tube.radius_mm must be finite and > 0 everywhere, got e.g. {bad[0]!r}")
-        object.__setattr__(self, "centerline_mm", _readonly(centre))
-        object.__setattr__(self, "radius_mm", _readonly(radius))
+        object.__setattr__(self, "centerline_mm", _v.readonly_copy(centre))
+        object.__setattr__(self, "radius_mm", _v.readonly_copy(radius))
 
     @property
     def segment_count(self) -> int:
@@ -168,8 +162,8 @@ class TubePhantom:
         ends = np.concatenate([p[1] for p in parts])
         radii = np.concatenate([p[2] for p in parts])
         object.__setattr__(self, "tubes", tubes)
-        object.__setattr__(self, "_segments", (_readonly(starts), _readonly(ends), _readonly(radii)))
-        object.__setattr__(self, "_pieces", tuple(_readonly(x) for x in _cut_into_pieces(starts, ends, radii)))
+        object.__setattr__(self, "_segments", (_v.readonly_copy(starts), _v.readonly_copy(ends), _v.readonly_copy(radii)))
+        object.__setattr__(self, "_pieces", tuple(_v.readonly_copy(x) for x in _cut_into_pieces(starts, ends, radii)))
 
     # -- plain accessors ----------------------------------------------------------------------
     def segments_mm(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
