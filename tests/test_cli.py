@@ -38,7 +38,8 @@ def test_reconstruct_writes_ply_report_and_figure(tmp_path, capsys):
     report = json.loads((out / "report.json").read_text())
     vessel = read_points(out / "vessel.ply")
     assert report["n_vessel_points"] == len(vessel) > 0
-    assert report["options"] == {"resolution": 40, "threshold_px": 1.0, "engine": "auto", "centerlines": True}
+    assert report["options"] == {"resolution": 40, "threshold_px": 1.0, "engine": "auto", "centerlines": True,
+                                 "device": "cpu"}
     assert report["engine"] == "octree"
     assert [v["name"] for v in report["views"]] == ["ap", "lao90"]
     assert all(v["dice2d_reprojection"] > 80 for v in report["views"])
@@ -114,3 +115,13 @@ def test_demo_writes_everything_and_prints_scores(tmp_path, capsys):
     assert "Dice3D" in printed and "Chamfer" in printed
     report = json.loads((out / "report.json").read_text())
     assert report["scores"]["dice3d"] > 60
+
+
+def test_cuda_without_cupy_or_gpu_is_a_clear_error(tmp_path, capsys):
+    from angiohull.reconstruction.gpu import cuda_available
+
+    if cuda_available():
+        pytest.skip("a CUDA GPU is present: the error path cannot be exercised")
+    study = ball_study(tmp_path / "study")
+    assert main(["evaluate", str(study.parent), "-k", "20", "--device", "cuda"]) == 2
+    assert "CuPy" in capsys.readouterr().err

@@ -5,7 +5,6 @@ Skipped without CuPy or without a CUDA device.
 
 import numpy as np
 import pytest
-from scipy import ndimage as ndi
 
 pytest.importorskip("cupy", reason="the CUDA path needs CuPy (pip install 'angiohull[gpu]')")
 
@@ -13,24 +12,11 @@ from angiohull.geometry import CArmGeometry, Projection, cube_half_edge_mm  # no
 from angiohull.reconstruction import ENGINES, Lattice  # noqa: E402
 from angiohull.reconstruction.gpu import carve_cuda, cuda_available  # noqa: E402
 from angiohull.synthetic import demo_phantom, demo_views  # noqa: E402
+from _cases import random_case  # noqa: E402
 
 if not cuda_available():
     pytest.skip("CuPy is installed but no CUDA device is usable (driver, runtime or GPU missing)",
                 allow_module_level=True)
-
-
-def random_case(seed, n_views, shape=(96, 80)):
-    """Blobby random masks (clusters plus speckle) in random C-arm views."""
-    rng = np.random.default_rng(seed)
-    projections, masks = [], []
-    for _ in range(n_views):
-        carm = CArmGeometry(rng.uniform(-120, 120), rng.uniform(-45, 45), 1000.0, rng.uniform(600, 800),
-                            (1.5, 1.5), shape, tuple(rng.uniform(-5, 5, 2)))
-        seeds = rng.random(shape) < 0.004
-        mask = ndi.binary_dilation(seeds, iterations=int(rng.integers(1, 4))) | (rng.random(shape) < 0.01)
-        projections.append(carm.projection())
-        masks.append(mask)
-    return projections, masks
 
 
 def assert_same(engine, lattice, projections, masks, threshold):
@@ -82,3 +68,13 @@ def test_cuda_rejects_other_engines():
     projections, masks = random_case(0, 2)
     with pytest.raises(ReconstructionError, match="lookup"):
         carve_cuda("kdtree", Lattice(cube_half_edge_mm(projections), 16), projections, masks, threshold_px=1.0)
+
+
+def test_reconstruct_on_cuda_equals_the_cpu():
+    from angiohull.reconstruction import reconstruct
+
+    projections, masks = random_case(21, n_views=3)
+    cpu = reconstruct(projections, masks, resolution=64, centerlines=False)
+    gpu = reconstruct(projections, masks, resolution=64, centerlines=False, device="cuda")
+    assert gpu.device == "cuda" and gpu.engine == "octree"
+    np.testing.assert_array_equal(gpu.vessel_points_mm, cpu.vessel_points_mm)

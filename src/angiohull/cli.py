@@ -37,6 +37,9 @@ def _add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--engine", choices=ENGINE_CHOICES, default="auto",
                         help=f"carving engine: kdtree (the paper's reference), lookup, octree; all keep the same "
                              f"points; auto (default) = {AUTO_ENGINE}, the fastest")
+    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                        help="run the lookup/octree engine on the CPU (default) or a CUDA GPU (needs CuPy: "
+                             "pip install 'angiohull[gpu]'); same points either way")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -116,7 +119,7 @@ def _cmd_reconstruct(args) -> int:
 
     progress = _Progress(not args.quiet)
     study = load_study(args.study)
-    options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines)
+    options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines, args.device)
     _, report, _ = _run_study(study, options, args.output, progress, figure=not args.no_figure, score=False)
     if not args.quiet:
         per_view = ", ".join(f"{v['name']} {v['dice2d_reprojection']:.1f} %" for v in report["views"])
@@ -133,7 +136,7 @@ def _cmd_evaluate(args) -> int:
     study = load_study(args.study)
     if study.ground_truth_mm is None:
         raise AngiohullError(f"{args.study}: the study has no ground truth; add 'ground_truth: gt.npy' to its study.yaml")
-    options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=False)
+    options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=False, device=args.device)
     _, _, scores = _run_study(study, options, None, progress, figure=False, score=True)
     if args.json:
         print(json.dumps(scores))
@@ -153,7 +156,7 @@ def _cmd_demo(args) -> int:
     study_yaml = write_demo_study(out / "study")
     progress(f"wrote the study: {study_yaml}")
     study = load_study(study_yaml)
-    options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=True)
+    options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=True, device=args.device)
     _, report, scores = _run_study(study, options, out, progress, figure=True, score=True)
     print(_format_scores(scores))
     print(f"outputs in {out}/: vessel.ply, centerlines.ply, report.json, figure.png; the study is in {out}/study/")

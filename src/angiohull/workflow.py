@@ -34,6 +34,7 @@ class ReconstructOptions:
     threshold_px: float = DEFAULT_THRESHOLD_PX  # strict distance threshold, px
     engine: str = "auto"  # carving engine (auto: the fastest exact one)
     centerlines: bool = True  # extract centerline points
+    device: str = "cpu"  # where the lookup/octree engines run: cpu or cuda
 
 
 def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOptions()) -> ReconstructionResult:
@@ -41,7 +42,7 @@ def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOpt
     return reconstruct(
         study.projections, study.masks,
         resolution=options.resolution, threshold_px=options.threshold_px, engine=options.engine,
-        centerlines=options.centerlines, view_names=study.names,
+        centerlines=options.centerlines, view_names=study.names, device=options.device,
     )
 
 
@@ -124,7 +125,7 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
         "python": platform.python_version(),
         "study": str(study.root) if study.root is not None else None,
         "options": {"resolution": options.resolution, "threshold_px": options.threshold_px,
-                    "engine": options.engine, "centerlines": options.centerlines},
+                    "engine": options.engine, "centerlines": options.centerlines, "device": options.device},
         "engine": result.engine,
         "cube_of_interest": {"half_edge_mm": result.lattice.half_edge_mm, "resolution": result.lattice.resolution,
                              "lattice_spacing_mm": result.lattice_spacing_mm, "n_lattice_points": result.lattice.n_points},

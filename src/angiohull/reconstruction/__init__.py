@@ -18,6 +18,7 @@ from .centerlines import extract_centerlines, skeletonise
 from .cube import MAX_DENSE_RESOLUTION, Lattice
 from .engines import ENGINES, CarveOutcome
 from . import hierarchical  # noqa: F401  (registers the lookup and octree engines)
+from .gpu import CUDA_ENGINES, carve_cuda
 
 __all__ = [
     "reconstruct",
@@ -52,6 +53,7 @@ class ReconstructionResult:
     centerline_points_mm: np.ndarray | None  # (M, 3) centerline points, mm; None when not requested
     lattice: Lattice  # the cube of interest that was carved
     engine: str  # name of the carving engine
+    device: str  # "cpu" or "cuda"
     threshold_px: float  # distance threshold, px (strict)
     view_names: tuple[str, ...]  # names of the views, as given
     survivors_per_view: tuple[int, ...]  # points alive after each view, in the order applied
@@ -115,7 +117,7 @@ def _empty_hull_error(outcome: CarveOutcome, names: tuple[str, ...], lattice: La
 def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
                 resolution: int = DEFAULT_RESOLUTION, threshold_px: float = DEFAULT_THRESHOLD_PX,
                 engine: str = "auto", centerlines: bool = True, view_names: Sequence[str] | None = None,
-                half_edge_mm: float | None = None, allow_empty: bool = False) -> ReconstructionResult:
+                half_edge_mm: float | None = None, allow_empty: bool = False, device: str = "cpu") -> ReconstructionResult:
     """Carve the visual hull of the masks and, optionally, its centerline points.
 
     Parameters
@@ -140,6 +142,10 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         Override of the cube's half-edge R (default: from the views, DESIGN.md step 2).
     allow_empty : bool, keyword-only
         Return an empty result instead of raising :class:`EmptyHullError`.
+    device : {"cpu", "cuda"}, keyword-only
+        Where the ``lookup`` / ``octree`` engines run; ``"cuda"`` needs CuPy and a CUDA GPU
+        (``pip install 'angiohull[gpu]'``) and keeps exactly the CPU's points. It pays from about
+        K = 512 on (see docs/engines.md).
 
     Returns
     -------
@@ -150,6 +156,10 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     if engine not in ENGINE_CHOICES:
         raise ReconstructionError(f"unknown engine {engine!r}; choose one of {list(ENGINE_CHOICES)}")
     engine = AUTO_ENGINE if engine == "auto" else engine
+    if device not in ("cpu", "cuda"):
+        raise ReconstructionError(f"unknown device {device!r}; choose 'cpu' or 'cuda'")
+    if device == "cuda" and engine not in CUDA_ENGINES:
+        raise ReconstructionError(f"engine {engine!r} runs on the CPU only; with device='cuda' use one of {list(CUDA_ENGINES)}")
     timings: dict[str, float] = {}
 
     start = time.perf_counter()
@@ -158,7 +168,10 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     timings["cube"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    outcome = ENGINES[engine](lattice, list(projections), checked_masks, threshold_px=threshold)
+    if device == "cuda":
+        outcome = carve_cuda(engine, lattice, list(projections), checked_masks, threshold_px=threshold)
+    else:
+        outcome = ENGINES[engine](lattice, list(projections), checked_masks, threshold_px=threshold)
     timings["carve"] = time.perf_counter() - start
     timings["reconstruction"] = timings["cube"] + timings["carve"]
     if len(outcome.points_mm) == 0 and not allow_empty:
@@ -175,6 +188,7 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         centerline_points_mm=centerline_points,
         lattice=lattice,
         engine=engine,
+        device=device,
         threshold_px=threshold,
         view_names=names,
         survivors_per_view=outcome.survivors_per_view,

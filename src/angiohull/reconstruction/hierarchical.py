@@ -9,120 +9,159 @@ cells are split in eight until they reach the leaf size; the points of the leaf 
 exact per-point test of :class:`~angiohull.reconstruction.engines.MaskLookup`.
 
 The dense lattice is never held: memory follows the number of surviving cells and leaf points.
+
+Everything is written for an array module ``xp`` (NumPy here, CuPy for ``--device cuda``, see
+:mod:`.gpu`) with one ufunc per arithmetic operation, in the order of
+:func:`~angiohull.reconstruction.engines.project_in_front`: IEEE-exact on both, so the CPU and GPU
+keep bit-identical point sets.
 """
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from ..geometry import Projection
 from .cube import Lattice
-from .engines import CHUNK_POINTS, ENGINES, CarveOutcome, MaskLookup, project_in_front, sparsest_first
+from .engines import CHUNK_POINTS, ENGINES, CarveOutcome, MaskLookup, sparsest_first
 
-__all__ = ["carve_hierarchical", "carve_lookup", "carve_octree", "FootprintTest"]
+__all__ = ["carve_hierarchical", "carve_lookup", "carve_octree", "cell_sizes", "FootprintTest", "HIERARCHICAL_ENGINES"]
 
+HIERARCHICAL_ENGINES = ("lookup", "octree")
 _MARGIN_PX = 1e-6  # widening of footprints against rounding in the corner projections
+
+
+def cell_sizes(engine: str, resolution: int) -> tuple[int, int]:
+    """Root and leaf cell edges (lattice points) of a hierarchical engine at lattice resolution K."""
+    if engine == "lookup":  # a sweep over 16**3 blocks, split once
+        return 16, 4
+    if engine == "octree":  # from cells of up to 128**3 points
+        return min(128, 1 << max(2, int(np.ceil(np.log2(resolution))))), 4
+    raise ValueError(f"not a hierarchical engine: {engine!r}; choose one of {list(HIERARCHICAL_ENGINES)}")
+
+
+def _row(x, y, z, m: list[list[float]], r: int):
+    """``x*m[r][0] + y*m[r][1] + z*m[r][2] + m[r][3]`` left to right, as project_in_front."""
+    return x * m[r][0] + y * m[r][1] + z * m[r][2] + m[r][3]
 
 
 class FootprintTest:
     """Conservative "may a point of this box be kept by this view" test for many boxes at once."""
 
-    def __init__(self, projection: Projection, mask: np.ndarray, threshold_px: float):
-        self.matrix = projection.matrix
+    def __init__(self, projection: Projection, mask: np.ndarray, threshold_px: float, xp: Any = np):
+        self.xp = xp
+        self.m = projection.matrix.tolist()
         self.rows, self.cols = mask.shape
         self.reach = float(threshold_px) + _MARGIN_PX
         table = np.zeros((self.rows + 1, self.cols + 1), dtype=np.int64 if mask.size >= 2 ** 31 else np.int32)
         table[1:, 1:] = mask
         np.cumsum(table, axis=1, out=table)  # summed-area table: table[r, c] = mask[:r, :c].sum()
         np.cumsum(table, axis=0, out=table)
-        self.table = table
+        self.table = xp.asarray(table)
+        self.bits = [xp.asarray(np.array([(c >> s) & 1 for c in range(8)], dtype=bool)) for s in (2, 1, 0)]
 
-    def may_keep(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    def may_keep(self, lo, hi):
         """Bool (n,) for boxes with corners ``lo`` and ``hi`` (n, 3) in mm."""
-        n = len(lo)
-        corners = np.empty((n, 8, 3))
-        for c in range(8):
-            corners[:, c, 0] = hi[:, 0] if c & 4 else lo[:, 0]
-            corners[:, c, 1] = hi[:, 1] if c & 2 else lo[:, 1]
-            corners[:, c, 2] = hi[:, 2] if c & 1 else lo[:, 2]
-        uv, front = project_in_front(corners.reshape(-1, 3), self.matrix)
-        all_front = front.reshape(n, 8).all(axis=1)
-        keep = ~all_front  # a box reaching behind the source has no bounded footprint: keep it
-        rows_front = np.repeat(all_front, 8)[front]
-        uv = uv[rows_front].reshape(-1, 8, 2)
-        if len(uv) == 0:
-            return keep
-        c0 = np.clip(np.ceil(uv[..., 0].min(axis=1) - self.reach), 0, self.cols).astype(np.intp)
-        c1 = np.clip(np.floor(uv[..., 0].max(axis=1) + self.reach) + 1, 0, self.cols).astype(np.intp)
-        r0 = np.clip(np.ceil(uv[..., 1].min(axis=1) - self.reach), 0, self.rows).astype(np.intp)
-        r1 = np.clip(np.floor(uv[..., 1].max(axis=1) + self.reach) + 1, 0, self.rows).astype(np.intp)
+        xp, m = self.xp, self.m
+        # (n, 8) corners: corner c takes hi on axis 0 / 1 / 2 where bit 4 / 2 / 1 of c is set
+        x, y, z = (xp.where(bit[None, :], hi[:, a:a + 1], lo[:, a:a + 1]) for a, bit in enumerate(self.bits))
+        w = _row(x, y, z, m, 2)
+        front = w > 0
+        all_front = front.all(axis=1)
+        w = xp.where(front, w, 1.0)  # a box reaching behind the source is kept whatever its u, v
+        u = _row(x, y, z, m, 0) / w
+        v = _row(x, y, z, m, 1) / w
+        c0 = xp.clip(xp.ceil(u.min(axis=1) - self.reach), 0, self.cols).astype(np.intp)
+        c1 = xp.clip(xp.floor(u.max(axis=1) + self.reach) + 1, 0, self.cols).astype(np.intp)
+        r0 = xp.clip(xp.ceil(v.min(axis=1) - self.reach), 0, self.rows).astype(np.intp)
+        r1 = xp.clip(xp.floor(v.max(axis=1) + self.reach) + 1, 0, self.rows).astype(np.intp)
         t = self.table
         count = t[r1, c1] - t[r0, c1] - t[r1, c0] + t[r0, c0]
-        keep[all_front] = (count > 0) & (c1 > c0) & (r1 > r0)
-        return keep
+        return ~all_front | ((count > 0) & (c1 > c0) & (r1 > r0))
 
 
-def _cell_boxes(lattice: Lattice, starts: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
-    axis = lattice.axis_mm()
-    last = np.minimum(starts + size, lattice.resolution) - 1
-    return axis[starts], axis[last]
+class _ExactTest:
+    """A view's projection and :meth:`MaskLookup.near` on ``xp`` (same rule, same arithmetic)."""
+
+    def __init__(self, projection: Projection, mask: np.ndarray, threshold_px: float, xp: Any = np):
+        self.xp = xp
+        self.lookup = MaskLookup(mask, threshold_px)
+        self.m = projection.matrix.tolist()
+        self.flat = xp.asarray(self.lookup.flat)
+
+    def kept(self, x, y, z):
+        """Indices of the points in front of the source and closer than the threshold to the mask."""
+        xp, m, lk = self.xp, self.m, self.lookup
+        w = _row(x, y, z, m, 2)
+        front = xp.flatnonzero(w > 0)
+        x, y, z, w = x[front], y[front], z[front], w[front]
+        u = _row(x, y, z, m, 0) / w
+        v = _row(x, y, z, m, 1) / w
+        rows, cols = lk.shape
+        fu = xp.floor(xp.clip(xp.where(xp.isnan(u), -1e9, u), -lk.reach - 1, cols + lk.reach))
+        fv = xp.floor(xp.clip(xp.where(xp.isnan(v), -1e9, v), -lk.reach - 1, rows + lk.reach))
+        base = (fv.astype(np.intp) + lk.pad) * lk.stride + (fu.astype(np.intp) + lk.pad)
+        keep = xp.zeros(len(u), dtype=bool)
+        for a, b in lk.offsets:  # every window pixel for every point: no data-dependent compaction
+            du = u - (fu + a)
+            dv = v - (fv + b)
+            keep |= self.flat[base + (b * lk.stride + a)] & (xp.sqrt(du * du + dv * dv) < lk.threshold_px)
+        return front[keep]
 
 
-def _split(starts: np.ndarray, size: int, k: int) -> np.ndarray:
+def _children(xp, starts, size: int, k: int):
     half = size // 2
-    offsets = np.array([[a, b, c] for a in (0, half) for b in (0, half) for c in (0, half)], dtype=np.int64)
+    offsets = xp.asarray(np.array([[a, b, c] for a in (0, half) for b in (0, half) for c in (0, half)], dtype=np.int64))
     children = (starts[:, None, :] + offsets[None]).reshape(-1, 3)
-    return children[np.all(children < k, axis=1)]
-
-
-def _leaf_indices(starts: np.ndarray, size: int, k: int) -> np.ndarray:
-    """Flat lattice indices of the points of leaf cells (n_cells * size**3 at most), unsorted."""
-    r = np.arange(size, dtype=np.int64)
-    offsets = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
-    ijk = (starts[:, None, :] + offsets[None]).reshape(-1, 3)
-    ijk = ijk[np.all(ijk < k, axis=1)]
-    return (ijk[:, 0] * k + ijk[:, 1]) * k + ijk[:, 2]
+    return children[(children < k).all(axis=1)]
 
 
 def carve_hierarchical(lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
-                       threshold_px: float, root_size: int, leaf_size: int) -> CarveOutcome:
-    """Cull cells from ``root_size`` down to ``leaf_size`` (powers of two), then test points exactly."""
+                       threshold_px: float, root_size: int, leaf_size: int, xp: Any = np,
+                       chunk_points: int = CHUNK_POINTS) -> CarveOutcome:
+    """Cull cells from ``root_size`` down to ``leaf_size`` (powers of two), then test points exactly.
+
+    Returns NumPy arrays whatever ``xp`` is.
+    """
     k = lattice.resolution
     order = sparsest_first(masks)
-    tests = [FootprintTest(projections[i], masks[i], threshold_px) for i in order]
-    lookups = [(projections[i].matrix, MaskLookup(masks[i], threshold_px)) for i in order]
-    r = np.arange(0, k, root_size, dtype=np.int64)
-    starts = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+    tests = [FootprintTest(projections[i], masks[i], threshold_px, xp) for i in order]
+    exact = [_ExactTest(projections[i], masks[i], threshold_px, xp) for i in order]
+    axis = xp.asarray(lattice.axis_mm())
+    r = xp.arange(0, k, root_size, dtype=np.int64)
+    starts = xp.stack(xp.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
     size = root_size
     while True:
         cell_survivors = []  # lattice points (at most size**3 a cell) alive after each view
         for test in tests:
             if len(starts):
-                lo, hi = _cell_boxes(lattice, starts, size)
-                starts = starts[test.may_keep(lo, hi)]
-            cell_survivors.append(len(starts) * size ** 3)
+                starts = starts[test.may_keep(axis[starts], axis[xp.minimum(starts + size, k) - 1])]
+            cell_survivors.append(int(len(starts)) * size ** 3)
         if size <= leaf_size or len(starts) == 0:
             break
-        starts = _split(starts, size, k)
+        starts = _children(xp, starts, size, k)
         size //= 2
     if len(starts) == 0:  # culled away: say which view removed the last cells
         return CarveOutcome(np.empty((0, 3)), tuple(cell_survivors), order)
+    r = xp.arange(size, dtype=np.int64)
+    offsets = xp.stack(xp.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
     survivors = [0] * len(order)
     kept = []
-    cells_per_chunk = max(1, CHUNK_POINTS // size ** 3)
+    cells_per_chunk = max(1, chunk_points // size ** 3)
     for c in range(0, len(starts), cells_per_chunk):
-        flat = _leaf_indices(starts[c:c + cells_per_chunk], size, k)
-        points = lattice.points_at(flat)
-        for i, (matrix, lookup) in enumerate(lookups):
-            if len(points):
-                uv, front = project_in_front(points, matrix)
-                front[front] = lookup.near(uv)
-                points, flat = points[front], flat[front]
-            survivors[i] += len(points)
+        ijk = (starts[c:c + cells_per_chunk, None, :] + offsets[None]).reshape(-1, 3)
+        ijk = ijk[(ijk < k).all(axis=1)]
+        flat = (ijk[:, 0] * k + ijk[:, 1]) * k + ijk[:, 2]
+        x, y, z = axis[ijk[:, 0]], axis[ijk[:, 1]], axis[ijk[:, 2]]
+        for i, test in enumerate(exact):
+            if len(flat):
+                sel = test.kept(x, y, z)
+                x, y, z, flat = x[sel], y[sel], z[sel], flat[sel]
+            survivors[i] += int(len(flat))
         kept.append(flat)
-    flat = np.sort(np.concatenate(kept))
+    flat = xp.sort(xp.concatenate(kept))
+    flat = flat.get() if hasattr(flat, "get") else flat
     return CarveOutcome(lattice.points_at(flat), tuple(survivors), order)
 
 
@@ -130,15 +169,16 @@ def carve_lookup(lattice: Lattice, projections: Sequence[Projection], masks: Seq
                  threshold_px: float) -> CarveOutcome:
     """The ``lookup`` engine: a sweep over blocks of 16**3 points, culled, split once into 4**3
     blocks, culled again, then exact constant-time lookups per point."""
-    return carve_hierarchical(lattice, projections, masks, threshold_px=threshold_px, root_size=16, leaf_size=4)
+    root, leaf = cell_sizes("lookup", lattice.resolution)
+    return carve_hierarchical(lattice, projections, masks, threshold_px=threshold_px, root_size=root, leaf_size=leaf)
 
 
 def carve_octree(lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
                  threshold_px: float) -> CarveOutcome:
     """The ``octree`` engine: culling from cells of up to 128**3 points down to 4**3, then exact
     lookups; memory follows the surviving cells, so K up to 1024 fits in a few hundred MiB."""
-    root = min(128, 1 << max(2, int(np.ceil(np.log2(lattice.resolution)))))
-    return carve_hierarchical(lattice, projections, masks, threshold_px=threshold_px, root_size=root, leaf_size=4)
+    root, leaf = cell_sizes("octree", lattice.resolution)
+    return carve_hierarchical(lattice, projections, masks, threshold_px=threshold_px, root_size=root, leaf_size=leaf)
 
 
 ENGINES["lookup"] = carve_lookup
