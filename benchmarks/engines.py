@@ -100,7 +100,7 @@ def main(argv=None):
             rows[(engine, k)] = (statistics.median(times), max(peaks), float(np.mean(dices)))
             print(f"# done {engine} K={k}", file=sys.stderr, flush=True)
     base100 = rows[("kdtree", 100)][0]
-    print(f"\n| engine | K | median time (s) | speed-up vs kdtree same K | speed-up vs kdtree K=100 | peak memory (MiB) | mean Dice3D (%) |")
+    print("\n| engine | K | median time (s) | speed-up vs kdtree same K | speed-up vs kdtree K=100 | peak memory (MiB) | mean Dice3D (%) |")
     print("|---|---|---|---|---|---|---|")
     for (engine, k), (t, peak, dice) in sorted(rows.items(), key=lambda item: (item[0][1], ENGINE_NAMES.index(item[0][0]))):
         same = rows.get(("kdtree", k))

@@ -56,10 +56,16 @@ def image_shape(value: Any, name: str = "image_shape", *, error: type[AngiohullE
 
 
 def points_array(points: Any, name: str = "points", *, error: type[AngiohullError] = AngiohullError) -> np.ndarray:
-    """Return ``points`` as a float64 (N, 3) array, or raise ``error`` naming the shape received."""
-    array = np.asarray(points, dtype=np.float64)
+    """Return ``points`` as a finite float64 (N, 3) array, or raise ``error`` saying what was received."""
+    try:
+        array = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise error(f"{name} must be an (N, 3) array of x, y, z in mm, got {type(points).__name__}") from None
     if array.ndim != 2 or array.shape[1] != 3:
         raise error(f"{name} must be an (N, 3) array of x, y, z in mm, got shape {array.shape}")
+    finite = np.isfinite(array).all(axis=1)
+    if not finite.all():
+        raise error(f"{name} contains {int(np.count_nonzero(~finite))} non-finite point(s) (NaN or infinite coordinates)")
     return array
 
 

@@ -58,8 +58,6 @@ def voxelise(points_mm: np.ndarray, voxel_mm: float = PAPER_VOXEL_MM) -> np.ndar
     """Unique voxel indices ``floor(p / voxel_mm)`` of a point set, shape (M, 3) int64, sorted."""
     points = _v.points_array(points_mm, "points_mm")
     size = _v.positive_finite(voxel_mm, "voxel_mm")
-    if not np.all(np.isfinite(points)):
-        raise AngiohullError("points_mm contains non-finite coordinates")
     return _decode(np.unique(_encode(np.floor(points / size).astype(np.int64))))
 
 

@@ -33,6 +33,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
+from . import _validation as _v
 from .errors import AngiohullError
 
 __all__ = ["OVERLAY_COLOURS", "overlay_rgb", "reconstruction_figure"]
@@ -75,18 +76,9 @@ _VERTICAL_LABELS = {2: "z (mm, head ↑)", 1: "y (mm, posterior ↓)"}
 
 def _points(value: Any, name: str) -> np.ndarray:
     """Return ``value`` as a finite float64 (N, 3) array (an empty input gives (0, 3))."""
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise AngiohullError(f"{name} must be an (N, 3) array of x, y, z in mm, got {type(value).__name__}") from None
-    if array.size == 0:
+    if np.size(value) == 0:
         return np.empty((0, 3), dtype=np.float64)
-    if array.ndim != 2 or array.shape[1] != 3:
-        raise AngiohullError(f"{name} must be an (N, 3) array of x, y, z in mm, got shape {array.shape}")
-    if not np.all(np.isfinite(array)):
-        bad = int(np.count_nonzero(~np.isfinite(array).all(axis=1)))
-        raise AngiohullError(f"{name} contains {bad} point(s) with NaN or infinite coordinates")
-    return array
+    return _v.points_array(value, name)
 
 
 def _image(value: Any, name: str) -> np.ndarray:

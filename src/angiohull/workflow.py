@@ -51,8 +51,9 @@ def view_silhouettes(study: Study, result: ReconstructionResult) -> list[np.ndar
     return [cell_silhouette(result.vessel_points_mm, p, result.lattice_spacing_mm) for p in study.projections]
 
 
-def _detector_spacings(study: Study) -> list[float | None]:
-    return [None if v.carm is None else v.carm.pixel_spacing_mm[1] for v in study.views]
+def _detector_spacing_mm(view) -> float | None:
+    """Detector column spacing of a C-arm view; None for a bare matrix (unknown)."""
+    return None if view.carm is None else view.carm.pixel_spacing_mm[1]
 
 
 def evaluation_scores(study: Study, result: ReconstructionResult, silhouettes: list[np.ndarray]) -> dict[str, Any]:
@@ -67,7 +68,7 @@ def evaluation_scores(study: Study, result: ReconstructionResult, silhouettes: l
         raise ValueError("the study has no ground truth; add 'ground_truth: gt.npy' to its study.yaml")
     s3 = scores_3d(result.vessel_points_mm, study.ground_truth_mm)
     paper = dice2d_paper(result.vessel_points_mm, study.projections, study.masks,
-                         detector_spacings_mm=_detector_spacings(study))
+                         detector_spacings_mm=[_detector_spacing_mm(v) for v in study.views])
     plain = [dice2d(s, m) for s, m in zip(silhouettes, study.masks)]
     return {
         "dice3d": s3.dice3d,
@@ -113,7 +114,7 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
             "applied_as": result.view_order.index(i),
             "survivors_after_view": result.survivors_per_view[result.view_order.index(i)],
             "dice2d_reprojection": dice2d(silhouette, view.mask),
-            "dice2d_paper_dilation_px": paper_dilation_side_px(None if view.carm is None else view.carm.pixel_spacing_mm[1]),
+            "dice2d_paper_dilation_px": paper_dilation_side_px(_detector_spacing_mm(view)),
         }
         if view.carm is not None:
             c = view.carm

@@ -20,7 +20,7 @@ point (views sparsest mask first, each to the survivors of the previous ones); t
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -29,7 +29,7 @@ from ..geometry import Projection
 from .cube import Lattice
 
 __all__ = ["CarveOutcome", "ENGINES", "carve_kdtree", "carve_dense_lookup", "mask_pixel_centres", "project_in_front",
-           "MaskLookup", "sparsest_first"]
+           "MaskLookup", "sparsest_first", "project_row"]
 
 CHUNK_POINTS = 1 << 21
 """Points projected at once by the dense engines (bounds temporary memory)."""
@@ -50,11 +50,18 @@ def mask_pixel_centres(mask: np.ndarray) -> np.ndarray:
     return np.stack([cols, rows], axis=1).astype(np.float64)
 
 
+def project_row(x, y, z, m: list[list[float]], r: int):
+    """``x*m[r][0] + y*m[r][1] + z*m[r][2] + m[r][3]``, left to right, one ufunc per operation.
+
+    The single place where engines compute projections: element by element (no BLAS, no fused
+    multiply-add), so every engine, batch size and array module (NumPy, CuPy) gives bit-identical
+    coordinates for the same point and decides ties the same way.
+    """
+    return x * m[r][0] + y * m[r][1] + z * m[r][2] + m[r][3]
+
+
 def project_in_front(points: np.ndarray, matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pixel coordinates of the points in front of the source, and which points those are.
-
-    Written out element by element (no BLAS), so that every engine computes bit-identical
-    coordinates for the same point, whatever the batch size.
 
     Returns
     -------
@@ -62,13 +69,12 @@ def project_in_front(points: np.ndarray, matrix: np.ndarray) -> tuple[np.ndarray
         ``(u, v)`` of the points with ``w > 0``.
     front : (N,) bool array
     """
+    m = np.asarray(matrix).tolist()
     x, y, z = points[:, 0], points[:, 1], points[:, 2]
-    w = x * matrix[2, 0] + y * matrix[2, 1] + z * matrix[2, 2] + matrix[2, 3]
+    w = project_row(x, y, z, m, 2)
     front = w > 0
     x, y, z, w = x[front], y[front], z[front], w[front]
-    u = (x * matrix[0, 0] + y * matrix[0, 1] + z * matrix[0, 2] + matrix[0, 3]) / w
-    v = (x * matrix[1, 0] + y * matrix[1, 1] + z * matrix[1, 2] + matrix[1, 3]) / w
-    return np.stack([u, v], axis=1), front
+    return np.stack([project_row(x, y, z, m, 0) / w, project_row(x, y, z, m, 1) / w], axis=1), front
 
 
 def _kept_by_view(points: np.ndarray, projection: Projection, tree: cKDTree, threshold_px: float) -> np.ndarray:
@@ -103,39 +109,41 @@ class MaskLookup:
     mask : (rows, cols) bool array
     threshold_px : float
         Strict distance threshold, px.
+    xp : module, optional
+        Array module the test runs on (NumPy, or CuPy for the GPU path).
     """
 
-    def __init__(self, mask: np.ndarray, threshold_px: float):
+    def __init__(self, mask: np.ndarray, threshold_px: float, xp: Any = np):
+        self.xp = xp
         self.threshold_px = float(threshold_px)
         self.reach = int(np.ceil(self.threshold_px))  # window: floor(u) + (1 - reach .. reach)
         rows, cols = mask.shape
         self.pad = 2 * self.reach + 1
         padded = np.zeros((rows + 2 * self.pad, cols + 2 * self.pad), dtype=bool)
         padded[self.pad:self.pad + rows, self.pad:self.pad + cols] = mask
-        self.flat = padded.ravel()
+        self.flat = xp.asarray(padded.ravel())
         self.stride = padded.shape[1]
         self.shape = (rows, cols)
         self.offsets = [(a, b) for b in range(1 - self.reach, self.reach + 1) for a in range(1 - self.reach, self.reach + 1)]
 
-    def near(self, uv: np.ndarray) -> np.ndarray:
-        """Bool (M,): the nearest mask pixel centre is strictly closer than the threshold."""
-        rows, cols = self.shape
-        u, v = uv[:, 0], uv[:, 1]
+    def near_uv(self, u, v):
+        """Bool (M,) for coordinate arrays ``u``, ``v``: a mask pixel centre is strictly closer than
+        the threshold (computed as cKDTree does: the square root of the summed squares)."""
+        xp, rows, cols = self.xp, *self.shape
         # points far outside the image map into the zero padding; non-finite ones too
-        fu = np.floor(np.clip(np.nan_to_num(u, nan=-1e9), -self.reach - 1, cols + self.reach))
-        fv = np.floor(np.clip(np.nan_to_num(v, nan=-1e9), -self.reach - 1, rows + self.reach))
+        fu = xp.floor(xp.clip(xp.where(xp.isnan(u), -1e9, u), -self.reach - 1, cols + self.reach))
+        fv = xp.floor(xp.clip(xp.where(xp.isnan(v), -1e9, v), -self.reach - 1, rows + self.reach))
         base = (fv.astype(np.intp) + self.pad) * self.stride + (fu.astype(np.intp) + self.pad)
-        t = self.threshold_px
-        keep = np.zeros(len(uv), dtype=bool)
-        for a, b in self.offsets:
-            hit = self.flat[base + (b * self.stride + a)]
-            idx = np.flatnonzero(hit & ~keep)
-            if idx.size == 0:
-                continue
-            du = u[idx] - (fu[idx] + a)
-            dv = v[idx] - (fv[idx] + b)
-            keep[idx] = np.sqrt(du * du + dv * dv) < t  # as cKDTree: sqrt of the summed squares
+        keep = xp.zeros(len(u), dtype=bool)
+        for a, b in self.offsets:  # every window pixel for every point: no data-dependent compaction
+            du = u - (fu + a)
+            dv = v - (fv + b)
+            keep |= self.flat[base + (b * self.stride + a)] & (xp.sqrt(du * du + dv * dv) < self.threshold_px)
         return keep
+
+    def near(self, uv):
+        """:meth:`near_uv` for an (M, 2) array of ``(u, v)``."""
+        return self.near_uv(uv[:, 0], uv[:, 1])
 
 
 def sparsest_first(masks: Sequence[np.ndarray]) -> tuple[int, ...]:

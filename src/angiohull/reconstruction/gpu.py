@@ -5,7 +5,7 @@
 summed-area table, same exact :class:`~angiohull.reconstruction.engines.MaskLookup` rule) with the
 per-cell and per-point work on the GPU, and keeps exactly the points the CPU engines keep. Exactness
 rests on the arithmetic: every quantity is computed with the same IEEE operations in the same order
-as :func:`~angiohull.reconstruction.engines.project_in_front` and ``MaskLookup.near``, one CuPy
+as :func:`~angiohull.reconstruction.engines.project_row` and ``MaskLookup.near_uv``, one CuPy
 ufunc per operation (no fused kernels, which could contract a multiply and an add into an FMA);
 ``+ - * /``, ``sqrt``, ``floor`` and ``ceil`` are correctly rounded on the GPU as on the CPU.
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..geometry import Projection
 from .cube import Lattice
-from .engines import CHUNK_POINTS, ENGINES, CarveOutcome, MaskLookup, sparsest_first
+from .engines import CHUNK_POINTS, ENGINES, CarveOutcome, MaskLookup, project_row, sparsest_first
 
 __all__ = ["carve_hierarchical", "carve_lookup", "carve_octree", "cell_sizes", "FootprintTest", "HIERARCHICAL_ENGINES"]
 
@@ -39,11 +39,6 @@ def cell_sizes(engine: str, resolution: int) -> tuple[int, int]:
     if engine == "octree":  # from cells of up to 128**3 points
         return min(128, 1 << max(2, int(np.ceil(np.log2(resolution))))), 4
     raise ValueError(f"not a hierarchical engine: {engine!r}; choose one of {list(HIERARCHICAL_ENGINES)}")
-
-
-def _row(x, y, z, m: list[list[float]], r: int):
-    """``x*m[r][0] + y*m[r][1] + z*m[r][2] + m[r][3]`` left to right, as project_in_front."""
-    return x * m[r][0] + y * m[r][1] + z * m[r][2] + m[r][3]
 
 
 class FootprintTest:
@@ -66,12 +61,12 @@ class FootprintTest:
         xp, m = self.xp, self.m
         # (n, 8) corners: corner c takes hi on axis 0 / 1 / 2 where bit 4 / 2 / 1 of c is set
         x, y, z = (xp.where(bit[None, :], hi[:, a:a + 1], lo[:, a:a + 1]) for a, bit in enumerate(self.bits))
-        w = _row(x, y, z, m, 2)
+        w = project_row(x, y, z, m, 2)
         front = w > 0
         all_front = front.all(axis=1)
         w = xp.where(front, w, 1.0)  # a box reaching behind the source is kept whatever its u, v
-        u = _row(x, y, z, m, 0) / w
-        v = _row(x, y, z, m, 1) / w
+        u = project_row(x, y, z, m, 0) / w
+        v = project_row(x, y, z, m, 1) / w
         c0 = xp.clip(xp.ceil(u.min(axis=1) - self.reach), 0, self.cols).astype(np.intp)
         c1 = xp.clip(xp.floor(u.max(axis=1) + self.reach) + 1, 0, self.cols).astype(np.intp)
         r0 = xp.clip(xp.ceil(v.min(axis=1) - self.reach), 0, self.rows).astype(np.intp)
@@ -82,32 +77,20 @@ class FootprintTest:
 
 
 class _ExactTest:
-    """A view's projection and :meth:`MaskLookup.near` on ``xp`` (same rule, same arithmetic)."""
+    """A view's projection followed by :meth:`MaskLookup.near_uv`, on ``xp``."""
 
     def __init__(self, projection: Projection, mask: np.ndarray, threshold_px: float, xp: Any = np):
         self.xp = xp
-        self.lookup = MaskLookup(mask, threshold_px)
+        self.lookup = MaskLookup(mask, threshold_px, xp)
         self.m = projection.matrix.tolist()
-        self.flat = xp.asarray(self.lookup.flat)
 
     def kept(self, x, y, z):
         """Indices of the points in front of the source and closer than the threshold to the mask."""
-        xp, m, lk = self.xp, self.m, self.lookup
-        w = _row(x, y, z, m, 2)
-        front = xp.flatnonzero(w > 0)
+        m = self.m
+        w = project_row(x, y, z, m, 2)
+        front = self.xp.flatnonzero(w > 0)
         x, y, z, w = x[front], y[front], z[front], w[front]
-        u = _row(x, y, z, m, 0) / w
-        v = _row(x, y, z, m, 1) / w
-        rows, cols = lk.shape
-        fu = xp.floor(xp.clip(xp.where(xp.isnan(u), -1e9, u), -lk.reach - 1, cols + lk.reach))
-        fv = xp.floor(xp.clip(xp.where(xp.isnan(v), -1e9, v), -lk.reach - 1, rows + lk.reach))
-        base = (fv.astype(np.intp) + lk.pad) * lk.stride + (fu.astype(np.intp) + lk.pad)
-        keep = xp.zeros(len(u), dtype=bool)
-        for a, b in lk.offsets:  # every window pixel for every point: no data-dependent compaction
-            du = u - (fu + a)
-            dv = v - (fv + b)
-            keep |= self.flat[base + (b * lk.stride + a)] & (xp.sqrt(du * du + dv * dv) < lk.threshold_px)
-        return front[keep]
+        return front[self.lookup.near_uv(project_row(x, y, z, m, 0) / w, project_row(x, y, z, m, 1) / w)]
 
 
 def _children(xp, starts, size: int, k: int):

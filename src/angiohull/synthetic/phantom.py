@@ -189,7 +189,7 @@ class TubePhantom:
         inside : ndarray of bool, shape (N,)
             True where the distance to some segment is <= that segment's radius.
         """
-        points = _finite_points(points_mm, "points_mm")
+        points = _v.points_array(points_mm, "points_mm")
         return self._within(points, shrink_mm=0.0)
 
     def _within(self, points: np.ndarray, *, shrink_mm: float) -> np.ndarray:
@@ -373,13 +373,6 @@ class TubePhantom:
 
 
 # -- geometry kernels -------------------------------------------------------------------------
-def _finite_points(points_mm: np.ndarray, name: str) -> np.ndarray:
-    points = _v.points_array(points_mm, name)
-    if not np.all(np.isfinite(points)):
-        raise AngiohullError(f"{name} contains non-finite values (nan or inf)")
-    return points
-
-
 def _as_projection(projection: Projection | CArmGeometry) -> Projection:
     if isinstance(projection, CArmGeometry):
         return projection.projection()
