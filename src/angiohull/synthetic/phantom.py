@@ -142,6 +142,9 @@ class TubePhantom:
     _segments: tuple[np.ndarray, np.ndarray, np.ndarray] = field(init=False, repr=False)
     # The same capsules cut into short pieces (union unchanged) for spatial pruning.
     _pieces: tuple[np.ndarray, np.ndarray, np.ndarray] = field(init=False, repr=False)
+    # Index of the next / previous capsule of the same tube (-1 at a tube's ends).
+    _next: np.ndarray = field(init=False, repr=False)
+    _previous: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         if isinstance(self.tubes, Tube):
@@ -164,6 +167,13 @@ class TubePhantom:
         object.__setattr__(self, "tubes", tubes)
         object.__setattr__(self, "_segments", (_v.readonly_copy(starts), _v.readonly_copy(ends), _v.readonly_copy(radii)))
         object.__setattr__(self, "_pieces", tuple(_v.readonly_copy(x) for x in _cut_into_pieces(starts, ends, radii)))
+        counts = np.array([p[2].size for p in parts])
+        first = np.cumsum(counts) - counts
+        index = np.arange(radii.size)
+        nxt = np.where(np.isin(index + 1, first) | (index + 1 == radii.size), -1, index + 1)
+        prev = np.where(np.isin(index, first), -1, index - 1)
+        object.__setattr__(self, "_next", _v.readonly_copy(nxt, np.int64))
+        object.__setattr__(self, "_previous", _v.readonly_copy(prev, np.int64))
 
     # -- plain accessors ----------------------------------------------------------------------
     def segments_mm(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -329,8 +339,15 @@ class TubePhantom:
         spacing = _v.positive_finite(spacing_mm, "spacing_mm")
         generator = None if rng is None else np.random.default_rng(rng)
         a, b, r = self._segments
-        samples = [_capsule_surface(a[i], b[i], float(r[i]), spacing, generator) for i in range(r.size)]
-        points = np.concatenate(samples)
+        points, owner, side = _capsule_surfaces(a, b, r, spacing, generator)
+        # Cap samples strictly inside the adjacent capsule of the same tube (most of every joint's
+        # caps) are dropped by a direct test first; the general test below finds the rest.
+        neighbour = np.where(side > 0, self._next[owner], np.where(side < 0, self._previous[owner], -1))
+        check = neighbour >= 0
+        index = np.flatnonzero(check)
+        inside_neighbour = _point_within_segment(points[index], a[neighbour[index]], b[neighbour[index]],
+                                                 r[neighbour[index]] - _SURFACE_TOL_MM)
+        points = np.delete(points, index[inside_neighbour], axis=0)
         inside = self._within(points, shrink_mm=_SURFACE_TOL_MM)
         return points[~inside]
 
@@ -449,45 +466,60 @@ def _ray_segment_distance_sq(dirs, edge, edge_sq, w0, w0_sq, w1_sq, e_dot_w0, mo
     return np.maximum(best, 0.0)
 
 
-def _orthonormal_frame(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(axis, helper)
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(axis, e1)
+def _orthonormal_frames(axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing each unit axis (rows) to an orthonormal frame."""
+    helper = np.where(np.abs(axes[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    e1 = np.cross(axes, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    return e1, np.cross(axes, e1)
 
 
-def _ring(centre, e1, e2, radius, spacing, generator) -> np.ndarray:
-    n = max(1, math.ceil(2.0 * math.pi * radius / spacing)) if radius > 0 else 1
-    phase = 0.0 if generator is None else float(generator.uniform(0.0, 2.0 * math.pi))
-    ang = phase + 2.0 * math.pi * np.arange(n) / n
-    return centre + radius * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)
+def _capsule_surfaces(a: np.ndarray, b: np.ndarray, r: np.ndarray, spacing: float,
+                      generator: np.random.Generator | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Samples on the surface of every capsule, about ``spacing`` apart, as rings of points.
 
-
-def _capsule_surface(a, b, r, spacing, generator) -> np.ndarray:
-    """Samples on the surface of the capsule around segment ab with radius r."""
+    Each capsule gives rings along its cylinder (both end rings included) and rings of latitude on
+    its two hemispherical caps; a zero-length capsule gives a whole sphere (about the z axis).
+    Returns ``(points (N, 3), owning capsule (N,), side (N,))`` with side +1 / -1 for samples on
+    the cap at ``b`` / ``a`` and 0 on the cylinder.
+    """
     edge = b - a
-    length = float(np.linalg.norm(edge))
-    pts: list[np.ndarray] = []
-    if length == 0.0:
-        axis = np.array([0.0, 0.0, 1.0])
-        e1, e2 = _orthonormal_frame(axis)
-        n_lat = max(2, math.ceil(math.pi * r / spacing))
-        for k in range(n_lat + 1):
-            phi = math.pi * k / n_lat
-            pts.append(_ring(a + r * math.cos(phi) * axis, e1, e2, r * math.sin(phi), spacing, generator))
-        return np.concatenate(pts)
-    axis = edge / length
-    e1, e2 = _orthonormal_frame(axis)
-    n_ax = max(2, math.ceil(length / spacing) + 1)
-    for t in np.linspace(0.0, 1.0, n_ax):
-        pts.append(_ring(a + t * edge, e1, e2, r, spacing, generator))
-    n_lat = max(1, math.ceil(0.5 * math.pi * r / spacing))
-    for k in range(n_lat):  # the equator (k = n_lat) is the cylinder's end ring
-        phi = 0.5 * math.pi * k / n_lat
-        height, ring_r = r * math.cos(phi), r * math.sin(phi)
-        pts.append(_ring(b + height * axis, e1, e2, ring_r, spacing, generator))
-        pts.append(_ring(a - height * axis, e1, e2, ring_r, spacing, generator))
-    return np.concatenate(pts)
+    length = np.linalg.norm(edge, axis=1)
+    axes = np.where(length[:, None] > 0, edge / np.where(length > 0, length, 1.0)[:, None], [[0.0, 0.0, 1.0]])
+    e1, e2 = _orthonormal_frames(axes)
+    seg = np.arange(r.size)
+    # Cylinder rings: t = k / n for k = 0..n (one ring, the equator, for a sphere).
+    n_ax = np.where(length > 0, np.maximum(1, np.ceil(length / spacing)), 0).astype(np.int64)
+    cyl_seg = np.repeat(seg, n_ax + 1)
+    k = np.arange(cyl_seg.size) - np.repeat(np.cumsum(n_ax + 1) - (n_ax + 1), n_ax + 1)
+    t = np.where(n_ax[cyl_seg] > 0, k / np.maximum(n_ax[cyl_seg], 1), 0.0)
+    centres = [a[cyl_seg] + t[:, None] * edge[cyl_seg]]
+    radii = [r[cyl_seg]]
+    owner = [cyl_seg]
+    side = [np.zeros(cyl_seg.size, dtype=np.int64)]
+    # Cap rings: latitudes phi = (pi / 2) k / n_lat, k = 0..n_lat - 1 (the equator is a cylinder ring).
+    n_lat = np.maximum(1, np.ceil(0.5 * np.pi * r / spacing)).astype(np.int64)
+    cap_seg = np.repeat(seg, n_lat)
+    k = np.arange(cap_seg.size) - np.repeat(np.cumsum(n_lat) - n_lat, n_lat)
+    phi = 0.5 * np.pi * k / n_lat[cap_seg]
+    height = r[cap_seg] * np.cos(phi)
+    for sign, base in ((1, b), (-1, a)):
+        centres.append(base[cap_seg] + sign * height[:, None] * axes[cap_seg])
+        radii.append(r[cap_seg] * np.sin(phi))
+        owner.append(cap_seg)
+        side.append(np.full(cap_seg.size, sign, dtype=np.int64))
+    centres_all = np.concatenate(centres)
+    ring_r = np.concatenate(radii)
+    ring_owner = np.concatenate(owner)
+    ring_side = np.concatenate(side)
+    count = np.where(ring_r > 0, np.maximum(1, np.ceil(2.0 * np.pi * ring_r / spacing)), 1).astype(np.int64)
+    phase = np.zeros(count.size) if generator is None else generator.uniform(0.0, 2.0 * np.pi, size=count.size)
+    ring = np.repeat(np.arange(count.size), count)
+    j = np.arange(ring.size) - np.repeat(np.cumsum(count) - count, count)
+    angle = phase[ring] + 2.0 * np.pi * j / count[ring]
+    o = ring_owner[ring]
+    points = centres_all[ring] + ring_r[ring][:, None] * (np.cos(angle)[:, None] * e1[o] + np.sin(angle)[:, None] * e2[o])
+    return points, o, ring_side[ring]
 
 
 # -- the demo ---------------------------------------------------------------------------------
