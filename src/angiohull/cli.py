@@ -12,6 +12,8 @@ from typing import Sequence, TextIO
 from . import __version__
 from .errors import AngiohullError
 from .reconstruction import AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES
+from .synthetic.render import RASTERISERS
+from .synthetic.tree import TORTUOSITY_LEVELS, TREE_KINDS
 
 __all__ = ["main", "build_parser"]
 
@@ -69,12 +71,37 @@ def build_parser() -> argparse.ArgumentParser:
     _add_reconstruction_options(p)
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
 
-    p = sub.add_parser("demo", help="run the whole pipeline on a built-in phantom",
-                       description="Render a built-in tubular phantom into three clinical views, reconstruct it, "
-                                   "score it, and write everything into OUT_DIR.")
+    p = sub.add_parser("demo", help="run the whole pipeline on a built-in synthetic RCA tree",
+                       description="Generate a synthetic right coronary tree (fixed seed), render it into three "
+                                   "clinical views, reconstruct it, score it, and write everything into OUT_DIR.")
     p.add_argument("-o", "--output", type=Path, default=Path("angiohull-demo"), metavar="OUT_DIR",
                    help="output folder (default ./angiohull-demo)")
     _add_reconstruction_options(p)
+
+    p = sub.add_parser("synth", help="generate a synthetic coronary tree study with ground truth",
+                       description="Draw a synthetic coronary tree (seeded), render its masks in the given views, "
+                                   "apply corruptions, and write a study folder with gt.npy (surface points), "
+                                   "gt_lumen.npy, gt_centerlines.npz, tree.json (the tree's record) and "
+                                   "synthetic.json (options, seed, corruption records).")
+    p.add_argument("output", type=Path, metavar="OUT_DIR", help="study folder to write")
+    p.add_argument("--tree", choices=TREE_KINDS, default="rca", help="right coronary tree or left tree (default rca)")
+    p.add_argument("--tortuosity", default="moderate", metavar="LEVEL",
+                   help=f"one of {', '.join(TORTUOSITY_LEVELS)} (default moderate)")
+    p.add_argument("--views", default="clinical", metavar="VIEWS",
+                   help="'perpendicular', 'clinical' (RAO 30 CRA 30; LAO 60 CRA 30; RAO 30 CAU 30, the default) "
+                        "or clinical angles separated by ';', e.g. \"RAO 30 CRA 30; LAO 60 CRA 30\"")
+    p.add_argument("--sid-mm", type=float, default=1200.0, help="source-to-detector distance (default 1200)")
+    p.add_argument("--sod-mm", type=float, default=800.0, help="source-to-isocentre distance (default 800)")
+    p.add_argument("--pixel-mm", type=float, default=0.35, help="detector pixel spacing (default 0.35)")
+    p.add_argument("--size", type=int, default=512, help="detector rows = columns (default 512)")
+    p.add_argument("--rasteriser", choices=RASTERISERS, default="exact",
+                   help="exact silhouette (default) or the paper's rasteriser (splat, close, blur)")
+    p.add_argument("--corrupt", action="append", default=[], metavar="KIND=VALUES[@VIEWS]",
+                   help="repeatable: translate=TX,TY (px) | scale=F | rotate=DEG | fp=P | fn=P | missing=N | "
+                        "blob=N | catheter=N; @0,2 or @all picks views (default: view 0 for translate/scale/"
+                        "rotate, all views otherwise)")
+    p.add_argument("--seed", type=int, default=None, help="seed of every random draw (default: fresh, recorded)")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     return parser
 
 
@@ -152,7 +179,7 @@ def _cmd_demo(args) -> int:
 
     progress = _Progress(True)
     out = args.output
-    progress("rendering the built-in tubular phantom into three clinical views")
+    progress("drawing the built-in synthetic RCA tree (seed 2025) and rendering three clinical views")
     study_yaml = write_demo_study(out / "study")
     progress(f"wrote the study: {study_yaml}")
     study = load_study(study_yaml)
@@ -163,7 +190,30 @@ def _cmd_demo(args) -> int:
     return 0
 
 
-_COMMANDS = {"reconstruct": _cmd_reconstruct, "evaluate": _cmd_evaluate, "demo": _cmd_demo}
+def _cmd_synth(args) -> int:
+    from .synthetic.case import SynthOptions, make_case, write_case
+
+    progress = _Progress(not args.quiet)
+    options = SynthOptions(kind=args.tree, tortuosity=args.tortuosity, views=args.views, sid_mm=args.sid_mm,
+                           sod_mm=args.sod_mm, pixel_mm=args.pixel_mm, size=args.size, rasteriser=args.rasteriser,
+                           corruptions=tuple(args.corrupt), seed=args.seed)
+    progress(f"drawing a {options.tortuosity} {options.kind} tree and rendering {len(options.geometries())} views "
+             f"({options.rasteriser} rasteriser)")
+    case = make_case(options)
+    study_yaml = write_case(args.output, case)
+    if not args.quiet:
+        summary = case.tree.summary()
+        lengths = ", ".join(f"{b['name']} {b['length_mm']:.0f} mm" for b in summary["branches"])
+        stenoses = sum(len(b["stenoses"]) for b in summary["branches"])
+        print(f"{study_yaml}: seed {case.seed}; {lengths}; tortuosity index "
+              f"{summary['tortuosity_index_rad_per_cm']:.2f} rad/cm; {stenoses} stenos{'is' if stenoses == 1 else 'es'}")
+        for view, records, changed in zip(case.views, case.corruptions, case.changed_pixels):
+            for record, count in zip(records, changed):
+                print(f"  {view.name}: {record.kind} {record.to_dict()} changed {count} pixels")
+    return 0
+
+
+_COMMANDS = {"reconstruct": _cmd_reconstruct, "evaluate": _cmd_evaluate, "demo": _cmd_demo, "synth": _cmd_synth}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

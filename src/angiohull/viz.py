@@ -9,7 +9,7 @@ Public functions
 ----------------
 :func:`reconstruction_figure`
     One PNG that summarises a reconstruction: the point cloud projected on the three anatomical
-    planes (top row) and, for every view, the input mask overlaid with the reconstruction's
+    planes (top row, the ground truth in a second row when there is one) and, for every view, the input mask overlaid with the reconstruction's
     re-projected silhouette (bottom rows).
 :func:`overlay_rgb`
     The colour-coded mask / re-projection comparison image used by the view panels.
@@ -51,7 +51,6 @@ _OVERLAY_LABELS = {"both": "both", "missed": "mask only (missed)", "spurious": "
 #: Above this many vessel points the projections draw an evenly strided subset (drawing cost).
 _MAX_DRAWN_POINTS = 200_000
 _CENTERLINE_COLOUR = "#d62728"
-_GROUND_TRUTH_COLOUR = "0.55"
 _POINT_CMAP = "viridis"
 _VIEWS_PER_ROW = 4
 _FIGURE_WIDTH_IN = 13.0
@@ -171,12 +170,9 @@ def _limits(layers: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _draw_plane(fig: Any, ax: Any, plane: tuple, vessel: np.ndarray, centerline: np.ndarray | None,
-                ground_truth: np.ndarray | None, low: np.ndarray, high: np.ndarray, with_legend: bool) -> None:
+                low: np.ndarray, high: np.ndarray, with_legend: bool) -> None:
     h, v, d, panel_title, nearer_is_larger = plane
     handles = []
-    if ground_truth is not None and len(ground_truth):
-        handles.append(ax.scatter(ground_truth[:, h], ground_truth[:, v], s=_marker_size(len(ground_truth)),
-                                  c=_GROUND_TRUTH_COLOUR, alpha=0.3, linewidths=0, label="ground truth", zorder=1))
     if len(vessel):
         # Far points first, so that the points nearer to the viewer are drawn on top.
         order = np.argsort(vessel[:, d], kind="stable")
@@ -258,8 +254,8 @@ def reconstruction_figure(
     anatomical planes (LPS millimetres): frontal (x vs z, seen from anterior, so the patient's
     left is on the viewer's right), lateral (y vs z, seen from the patient's left) and axial (x vs
     y, seen from the feet, anterior up). Points are coloured by their coordinate along the dropped
-    (depth) axis and drawn far-to-near; centerline points are drawn on top in red and ground-truth
-    points as a faint grey layer underneath. The rows below hold one panel per view (up to four
+    (depth) axis and drawn far-to-near; centerline points are drawn on top in red. With a ground
+    truth, a second row shows the ground truth in the same three planes, on the same axes. The rows below hold one panel per view (up to four
     per row) with :func:`overlay_rgb` of the view's mask and the reconstruction's re-projection,
     titled with the view name and, when given, its score.
 
@@ -356,7 +352,7 @@ def reconstruction_figure(
         in_row = views[row * _VIEWS_PER_ROW:(row + 1) * _VIEWS_PER_ROW]
         aspect = max(mask.shape[0] / mask.shape[1] for mask, _ in in_row)
         row_heights.append(min(max(_VIEW_PANEL_WIDTH_IN * aspect, 1.2), 3.6) + _VIEW_DECORATION_IN)
-    top_height = 4.2
+    top_height = 4.2 if ground_truth is None else 8.0
     fig = Figure(figsize=(_FIGURE_WIDTH_IN, top_height + sum(row_heights) + 0.6), dpi=dpi_value,
                  layout="constrained")
     FigureCanvasAgg(fig)
@@ -367,9 +363,22 @@ def reconstruction_figure(
             top, bottom = fig.subfigures(2, 1, height_ratios=[top_height, sum(row_heights)])
         else:
             top, bottom = fig, None
-        plane_axes = top.subplots(1, len(_PLANES))
-        for k, (ax, plane) in enumerate(zip(plane_axes, _PLANES)):
-            _draw_plane(top, ax, plane, drawn, centerline, ground_truth, low, high, with_legend=(k == 0))
+        if ground_truth is None:
+            plane_axes = top.subplots(1, len(_PLANES))
+            for k, (ax, plane) in enumerate(zip(plane_axes, _PLANES)):
+                _draw_plane(top, ax, plane, drawn, centerline, low, high, with_legend=(k == 0))
+        else:
+            # The ground truth beside the reconstruction: one row each, same planes, same axes.
+            rec_fig, gt_fig = top.subfigures(2, 1)
+            rec_fig.suptitle("reconstruction", fontsize=10)
+            gt_fig.suptitle("ground truth", fontsize=10)
+            gt_drawn = ground_truth
+            if len(ground_truth) > _MAX_DRAWN_POINTS:
+                gt_drawn = ground_truth[np.linspace(0, len(ground_truth) - 1, _MAX_DRAWN_POINTS).astype(np.int64)]
+            for sub, cloud, line in ((rec_fig, drawn, centerline), (gt_fig, gt_drawn, None)):
+                axes = sub.subplots(1, len(_PLANES))
+                for k, (ax, plane) in enumerate(zip(axes, _PLANES)):
+                    _draw_plane(sub, ax, plane, cloud, line, low, high, with_legend=(k == 0))
 
         row_figs = [] if bottom is None else list(np.atleast_1d(bottom.subfigures(view_rows, 1, height_ratios=row_heights)))
         for row, row_fig in enumerate(row_figs):
