@@ -8,7 +8,8 @@ they do not depend on how densely the vessel happened to be sampled:
 * :func:`sum_of_angles_metric` — the total turning angle per centimetre of arc ("SOAM", same
   paper): at each inner point the in-plane angle between consecutive steps and the torsional angle
   between consecutive osculating planes, combined as ``sqrt(ip**2 + tp**2)``, summed and divided
-  by the length;
+  by the arc over which the turning is measured (from the middle of the first step to the middle
+  of the last, so that a circle gives exactly its curvature up to the step's discretisation);
 * :func:`curvature_metric` — the in-plane part alone (total curvature per centimetre). Unlike the
   torsional part it is well conditioned where the curve is nearly straight (at the inflections of
   a wavy vessel the osculating plane is undefined and the torsional angle jumps by up to pi), so
@@ -98,7 +99,7 @@ def sum_of_angles_metric(points_mm: np.ndarray, step_mm: float = 1.0) -> float:
     in_plane, torsion = _turning_angles(points)
     torsion = np.append(torsion, 0.0)
     total = float(np.sqrt(in_plane ** 2 + torsion ** 2).sum())
-    return total / (arc_length_mm(points)[-1] / 10.0)
+    return total / (_turning_arc_mm(points) / 10.0)
 
 
 def curvature_metric(points_mm: np.ndarray, step_mm: float = 1.0) -> float:
@@ -111,4 +112,10 @@ def curvature_metric(points_mm: np.ndarray, step_mm: float = 1.0) -> float:
     if points.shape[0] < 3:
         return 0.0
     in_plane, _ = _turning_angles(points)
-    return float(in_plane.sum()) / (arc_length_mm(points)[-1] / 10.0)
+    return float(in_plane.sum()) / (_turning_arc_mm(points) / 10.0)
+
+
+def _turning_arc_mm(points: np.ndarray) -> float:
+    """Arc from the middle of the first step to the middle of the last (where the angles are measured)."""
+    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    return float(steps.sum() - 0.5 * (steps[0] + steps[-1]))

@@ -59,6 +59,7 @@ __all__ = [
     "TREE_KINDS", "TORTUOSITY_LEVELS", "TORTUOSITY_BANDS", "CENTERLINE_STEP_MM",
     "HeartPose", "Wave", "Stenosis", "BranchParams", "TreeParams",
     "Branch", "CoronaryTree", "draw_tree_params", "build_tree", "generate_tree", "tree_tortuosity_index",
+    "min_bend_radius_mm",
 ]
 
 TREE_KINDS: tuple[str, ...] = ("rca", "left")
@@ -67,9 +68,9 @@ TREE_KINDS: tuple[str, ...] = ("rca", "left")
 TORTUOSITY_LEVELS: tuple[str, ...] = ("simple", "moderate", "tortuous")
 
 TORTUOSITY_BANDS: dict[str, tuple[float, float]] = {
-    "simple": (0.0, 0.5),
-    "moderate": (0.65, 1.25),
-    "tortuous": (1.5, 2.6),
+    "simple": (0.0, 0.55),
+    "moderate": (0.6, 1.05),
+    "tortuous": (1.2, 2.0),
 }
 """Accepted range of :func:`tree_tortuosity_index` (rad/cm) per level; the gaps keep levels apart."""
 
@@ -79,6 +80,9 @@ CENTERLINE_STEP_MM = 0.5
 _RAMP_MM = 10.0  # tortuosity waves ramp in over this arc length, mm
 _DENSE_STEP_MM = 0.1  # step of the dense course from which the vertices are cut, mm
 _MAX_WAVE_DRAWS = 200  # redraws of the waves before giving up on a tortuosity band
+_MAX_S_FRACTION = 0.95  # control points are kept at s <= 0.95 H (the surface is a point at the apex)
+_MIN_BEND_RATIO = 1.2  # radius of curvature >= 1.2 x the vessel's largest radius: no tube folds
+_WAVE_BEND_RATIO = 1.5  # the waves of a branch bend it no tighter than 1.5 x its largest radius
 
 
 class _Record(BaseModel):
@@ -243,6 +247,20 @@ class CoronaryTree:
         return {b.name: np.column_stack([b.centerline_mm, b.radius_mm]) for b in self.branches}
 
 
+def min_bend_radius_mm(centerline_mm: np.ndarray) -> float:
+    """Smallest radius of curvature of a polyline, from the turning angle at each inner vertex."""
+    steps = np.diff(centerline_mm, axis=0)
+    length = np.linalg.norm(steps, axis=1)
+    unit = steps / length[:, None]
+    angle = np.arccos(np.clip(np.einsum("ij,ij->i", unit[:-1], unit[1:]), -1.0, 1.0))
+    curvature = angle / (0.5 * (length[:-1] + length[1:]))
+    return float(1.0 / curvature.max()) if curvature.size and curvature.max() > 0 else float("inf")
+
+
+def _folds(branch: Branch) -> bool:
+    return min_bend_radius_mm(branch.centerline_mm) < _MIN_BEND_RATIO * float(branch.radius_mm.max())
+
+
 def tree_tortuosity_index(branches: Sequence[Branch]) -> float:
     """Arc-length weighted mean of the branches' curvature metric (rad/cm); defines the levels."""
     lengths = np.array([b.length_mm for b in branches])
@@ -278,7 +296,8 @@ class _HeartFrame:
     def surface(self, s_mm: np.ndarray, theta_deg: np.ndarray) -> np.ndarray:
         s = np.asarray(s_mm, dtype=np.float64)
         t = np.radians(np.asarray(theta_deg, dtype=np.float64))
-        rho = self.radius * np.sqrt(np.clip(1.0 - (np.clip(s, 0.0, None) / self.height) ** 2, 0.0, None))
+        s = np.minimum(s, _MAX_S_FRACTION * self.height)  # never onto the apex itself
+        rho = self.radius * np.sqrt(1.0 - (np.clip(s, 0.0, None) / self.height) ** 2)
         return (self.base_centre + s[..., None] * self.axis
                 + rho[..., None] * (np.cos(t)[..., None] * self.anterior + np.sin(t)[..., None] * self.left))
 
@@ -372,18 +391,21 @@ def _radii(params: BranchParams, centerline: np.ndarray) -> tuple[np.ndarray, np
     return reference * factor, reference
 
 
+def _build_branch(frame: _HeartFrame, bp: BranchParams, parent: Optional[Branch]) -> Branch:
+    origin = origin_vertex = None
+    if parent is not None:
+        origin_vertex = int(round(bp.origin_fraction * (parent.centerline_mm.shape[0] - 1)))
+        origin = parent.centerline_mm[origin_vertex]
+    centerline = _cut(_course(frame, bp, origin), bp.length_mm)
+    radius, reference = _radii(bp, centerline)
+    return Branch(bp.name, bp.parent, origin_vertex, centerline, radius, reference, bp.stenoses)
+
+
 def _build_branches(params: TreeParams) -> tuple[list[Branch], _HeartFrame]:
     frame = _HeartFrame.of(params.heart)
     branches: list[Branch] = []
     for bp in params.branches:
-        origin = origin_vertex = None
-        if bp.parent is not None:
-            parent = branches[bp.parent]
-            origin_vertex = int(round(bp.origin_fraction * (parent.centerline_mm.shape[0] - 1)))
-            origin = parent.centerline_mm[origin_vertex]
-        centerline = _cut(_course(frame, bp, origin), bp.length_mm)
-        radius, reference = _radii(bp, centerline)
-        branches.append(Branch(bp.name, bp.parent, origin_vertex, centerline, radius, reference, bp.stenoses))
+        branches.append(_build_branch(frame, bp, None if bp.parent is None else branches[bp.parent]))
     return branches, frame
 
 
@@ -427,57 +449,72 @@ class _BranchPlan:
     end_ratio: tuple[float, float]  # radius_end / radius_start
     course: tuple[tuple[float, float], ...]  # nominal control points (s_mm, theta_deg)
     max_stenoses: int
+    jitter: tuple[float, float] = (3.0, 6.0)  # uniform +- jitter of each control point after the first (mm, deg)
+    wavy: bool = True  # gets tortuosity waves (not the short left main)
 
 
 def _plans(kind: str, rng: np.random.Generator, height: float) -> list[_BranchPlan]:
+    # Courses stay below s = 0.9 H (the surface narrows to a point at the apex); the LAD goes
+    # round the apex on a ring of radius about 0.4 R rather than over it.
+    h = height
     if kind == "rca":
         return [
             _BranchPlan("RCA", None, (0.0, 0.0), (120.0, 140.0), (2.0, 2.5), (0.30, 0.40),
                         ((-10, -30), (-2, -60), (2, -100), (3, -140), (3, -180), (6, -215), (20, -240),
-                         (40, -252), (60, -258), (75, -260)), 2),
+                         (38, -252), (0.72 * h, -258), (0.85 * h, -262)), 2),
             _BranchPlan("conus", 0, (0.03, 0.12), (0.8 * 35.0, 1.2 * 35.0), (0.9, 1.1), (0.55, 0.7),
                         ((0, 0), (3, 25), (8, 50), (14, 75), (20, 100), (26, 120)), 1),
             _BranchPlan("acute_marginal", 0, (0.18, 0.35), (0.8 * 51.0, 1.2 * 51.0), (1.0, 1.2), (0.55, 0.7),
-                        ((0, 0), (12, -6), (28, -10), (45, -10), (62, -6), (76, 0), (84, 5)), 1),
+                        ((0, 0), (12, -6), (26, -10), (40, -10), (0.66 * h, -6), (0.82 * h, 0)), 1),
             _BranchPlan("posterior_descending", 0, (0.55, 0.65), (0.8 * 55.0, 1.2 * 55.0), (1.0, 1.2), (0.55, 0.7),
-                        ((0, 0), (12, 8), (28, 14), (45, 18), (62, 20), (76, 20), (84, 20)), 1),
+                        ((0, 0), (12, 8), (26, 14), (40, 18), (0.66 * h, 20), (0.82 * h, 20)), 1),
         ]
-    h = height
     plans = [
         _BranchPlan("left_main", None, (0.0, 0.0), (8.0, 12.0), (2.0, 2.5), (0.9, 0.95),
-                    ((-8, 40), (-5, 48), (-2, 56), (1, 62), (4, 68)), 0),
+                    ((-8, 40), (-2, 54), (4, 68)), 0, jitter=(1.0, 2.0), wavy=False),
         _BranchPlan("LAD", 0, (1.0, 1.0), (100.0, 130.0), (1.75, 2.4), (0.30, 0.40),
-                    ((0, 0), (6, -20), (20, -35), (40, -40), (60, -42), (0.85 * h, -42), (0.99 * h, -42),
-                     (0.85 * h, 138), (0.6 * h, 138), (0.4 * h, 138)), 2),
+                    ((0, 0), (6, -20), (20, -35), (40, -40), (0.7 * h, -42), (0.86 * h, -30), (0.9 * h, 20),
+                     (0.86 * h, 70), (0.78 * h, 110), (0.66 * h, 130)), 2),
         _BranchPlan("LCx", 0, (1.0, 1.0), (80.0, 100.0), (1.5, 2.25), (0.35, 0.5),
-                    ((0, 0), (3, 25), (4, 55), (4, 85), (8, 110), (20, 125), (40, 130), (60, 130), (75, 130)), 1),
+                    ((0, 0), (3, 25), (4, 55), (4, 85), (8, 110), (20, 125), (38, 130), (0.7 * h, 132),
+                     (0.82 * h, 134)), 1),
     ]
     n_diagonal = int(rng.integers(1, 4))
     n_marginal = int(rng.integers(1, 3))
     for i in range(n_diagonal):
-        plans.append(_BranchPlan(f"diagonal_{i + 1}", 1, (0.15, 0.6), (30.0, 60.0), (0.8, 1.2), (0.5, 0.7),
-                                 ((0, 0), (10, 15), (25, 28), (40, 35), (55, 40), (70, 42), (80, 43)), 1))
+        plans.append(_BranchPlan(f"diagonal_{i + 1}", 1, (0.15, 0.5), (30.0, 60.0), (0.8, 1.2), (0.5, 0.7),
+                                 ((0, 0), (6, 15), (12, 30), (18, 45), (22, 60), (25, 75), (27, 90)), 1))
     for i in range(n_marginal):
         plans.append(_BranchPlan(f"obtuse_marginal_{i + 1}", 2, (0.3, 0.75), (30.0, 55.0), (0.8, 1.1), (0.5, 0.7),
-                                 ((0, 0), (12, -5), (28, -8), (45, -8), (62, -5), (75, -2)), 1))
+                                 ((0, 0), (12, -5), (26, -8), (40, -8), (52, -5), (60, -2)), 1))
     return plans
 
 
 _WAVE_RANGES: dict[str, dict[str, tuple[float, float]]] = {
     # count (inclusive), amplitude (mm), wavelength (mm) of the waves of one branch
-    "simple": {"count": (1, 2), "amplitude_mm": (0.2, 0.8), "wavelength_mm": (35.0, 70.0)},
-    "moderate": {"count": (2, 3), "amplitude_mm": (0.8, 2.0), "wavelength_mm": (18.0, 35.0)},
-    "tortuous": {"count": (3, 4), "amplitude_mm": (1.6, 3.2), "wavelength_mm": (11.0, 22.0)},
+    "simple": {"count": (1, 2), "amplitude_mm": (0.1, 0.5), "wavelength_mm": (40.0, 80.0)},
+    "moderate": {"count": (2, 3), "amplitude_mm": (0.6, 1.5), "wavelength_mm": (20.0, 36.0)},
+    "tortuous": {"count": (3, 4), "amplitude_mm": (2.0, 4.0), "wavelength_mm": (12.0, 24.0)},
 }
 
 
-def _draw_waves(rng: np.random.Generator, level: str) -> tuple[Wave, ...]:
+def _draw_waves(rng: np.random.Generator, level: str, radius_mm: float) -> tuple[Wave, ...]:
+    """Waves of one branch whose largest radius is ``radius_mm``.
+
+    A wave's peak curvature is ``amplitude (2 pi / wavelength)^2``; the amplitudes are capped so that
+    each wave's peak curvature is at most ``1 / (1.5 radius sqrt(count))``: waves of different
+    wavelengths seldom peak together, so their sum usually stays below ``1 / (1.5 radius)``; a branch
+    that still bends tighter than its radius allows is drawn again (see :func:`draw_tree_params`).
+    """
     ranges = _WAVE_RANGES[level]
     count = int(rng.integers(ranges["count"][0], ranges["count"][1] + 1))
+    cap_per_wave = 1.0 / (_WAVE_BEND_RATIO * radius_mm * math.sqrt(count))
     waves = []
     for _ in range(count):
-        waves.append(Wave(amplitude_mm=float(rng.uniform(*ranges["amplitude_mm"])),
-                          wavelength_mm=float(rng.uniform(*ranges["wavelength_mm"])),
+        amplitude = float(rng.uniform(*ranges["amplitude_mm"]))
+        wavelength = float(rng.uniform(*ranges["wavelength_mm"]))
+        amplitude = min(amplitude, cap_per_wave * wavelength ** 2 / (4.0 * math.pi ** 2))
+        waves.append(Wave(amplitude_mm=amplitude, wavelength_mm=wavelength,
                           phase_rad=float(rng.uniform(0.0, 2.0 * math.pi)),
                           direction_rad=float(rng.uniform(0.0, 2.0 * math.pi))))
     return tuple(waves)
@@ -562,7 +599,8 @@ def draw_tree_params(kind: str = "rca", tortuosity: str = "moderate",
         r1 = r0 * float(generator.uniform(*plan.end_ratio))
         course = [plan.course[0]]
         for s, theta in plan.course[1:]:
-            course.append((float(s + generator.uniform(-3.0, 3.0)), float(theta + generator.uniform(-6.0, 6.0))))
+            course.append((float(s + generator.uniform(-plan.jitter[0], plan.jitter[0])),
+                           float(theta + generator.uniform(-plan.jitter[1], plan.jitter[1]))))
         geometry.append((plan, fraction, length, r0, r1, tuple((float(a), float(b)) for a, b in course)))
     stenoses = []
     for index, (plan, _, length, _, _, _) in enumerate(geometry):
@@ -570,17 +608,27 @@ def draw_tree_params(kind: str = "rca", tortuosity: str = "moderate",
         count = int(generator.integers(0, plan.max_stenoses + 1))
         stenoses.append(_draw_stenoses(generator, count, length, children))
     low, high = TORTUOSITY_BANDS[tortuosity]
+    frame = _HeartFrame.of(heart)
     for _ in range(_MAX_WAVE_DRAWS):
-        branches = tuple(
-            BranchParams(name=plan.name, parent=plan.parent, origin_fraction=fraction, length_mm=length,
-                         radius_start_mm=r0, radius_end_mm=r1, course_deg=course,
-                         waves=_draw_waves(generator, tortuosity), stenoses=sten)
-            for (plan, fraction, length, r0, r1, course), sten in zip(geometry, stenoses)
-        )
-        params = TreeParams(kind=kind, tortuosity=tortuosity, seed=seed, heart=heart, branches=branches)
-        built, _ = _build_branches(params)
+        # Waves branch by branch (each redrawn until its tube does not fold), then the tree's
+        # tortuosity index must fall in the level's band, else all waves are drawn again.
+        records: list[BranchParams] = []
+        built: list[Branch] = []
+        for (plan, fraction, length, r0, r1, course), sten in zip(geometry, stenoses):
+            for _ in range(_MAX_WAVE_DRAWS):
+                waves = _draw_waves(generator, tortuosity, r0) if plan.wavy else ()
+                record = BranchParams(name=plan.name, parent=plan.parent, origin_fraction=fraction, length_mm=length,
+                                      radius_start_mm=r0, radius_end_mm=r1, course_deg=course, waves=waves,
+                                      stenoses=sten)
+                branch = _build_branch(frame, record, None if plan.parent is None else built[plan.parent])
+                if not _folds(branch):
+                    break
+            else:  # pragma: no cover - the courses are smooth and the waves' curvature is capped
+                raise AngiohullError(f"could not draw a {plan.name} of a {tortuosity} {kind} tree that does not fold")
+            records.append(record)
+            built.append(branch)
         if low <= tree_tortuosity_index(built) <= high:
-            return params
+            return TreeParams(kind=kind, tortuosity=tortuosity, seed=seed, heart=heart, branches=tuple(records))
     raise AngiohullError(  # pragma: no cover - the bands are set well inside what the waves give
         f"could not draw a {tortuosity} {kind} tree within its tortuosity band after {_MAX_WAVE_DRAWS} tries")
 
