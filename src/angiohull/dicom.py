@@ -799,7 +799,8 @@ def select_frame(frames: Any, *, end_diastolic_frames: Sequence[int] = (), param
     return FrameSelection(chosen, reason, tuple(float(s) for s in scores), best, tuple(ed))
 
 
-def read_xa_view(path: PathLike, frame: Optional[int] = None, *, parameters: Any = None) -> XAView:
+def read_xa_view(path: PathLike, frame: Optional[int] = None, *, parameters: Any = None,
+                 header: Optional[XAHeader] = None) -> XAView:
     """Read one frame of an XA file with its geometry: the DICOM input of a view.
 
     Parameters
@@ -811,6 +812,8 @@ def read_xa_view(path: PathLike, frame: Optional[int] = None, *, parameters: Any
         :func:`select_frame` (most contrast, or the end-diastolic frame nearest to it).
     parameters : SegmentationParameters, optional
         Settings of the contrast score used for automatic selection.
+    header : XAHeader, optional
+        The file's header, when already read (avoids reading it again and repeating its warnings).
 
     Returns
     -------
@@ -823,7 +826,7 @@ def read_xa_view(path: PathLike, frame: Optional[int] = None, *, parameters: Any
         See :func:`read_xa_header` and :func:`read_xa_frames`.
     """
     path = Path(path)
-    header = read_xa_header(path)
+    header = read_xa_header(path) if header is None else header
     if frame is not None:
         index = header.check_frame(frame)
         image = read_xa_frame(path, index, header)
