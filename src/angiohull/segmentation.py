@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import inspect
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Any, Mapping, Optional
 
 import numpy as np
@@ -73,21 +73,21 @@ class SegmentationParameters:
     ``min_object_px`` (as the square) and ``edge_band_px`` with the pixel size.
     """
 
-    vessels: str = "dark"  # "dark": vessels darker than the background (X-ray intensity); "bright": inverted display
-    smoothing_px: float = 1.0  # sigma of the Gaussian pre-smoothing, px (0: none)
-    background_px: int = 41  # side of the square of the grey closing that estimates the background, px; > widest vessel
-    method: str = "sato"  # multiscale vesselness filter: "sato" or "frangi" (scikit-image)
-    sigmas_px: tuple[float, ...] = (1.5, 2.5, 4.0)  # vesselness scales, px; vessels about 2-4 x sigma wide respond best
-    reference_percentile: float = 99.9  # percentile of the vesselness over the field that normalises it, %
-    low_threshold: float = 0.1  # hysteresis: low threshold on the normalised vesselness
-    high_threshold: float = 0.3  # hysteresis: high threshold on the normalised vesselness
-    seed_snr: float = 5.0  # a kept structure reaches A >= seed_snr x noise sigma somewhere
-    edge_snr: float = 2.0  # edge refinement: pixels with A >= edge_snr x noise sigma ...
-    edge_band_px: int = 2  # ... within this distance of the detected structures, px
-    min_object_px: int = 100  # connected structures with fewer pixels are removed
-    collimator: bool = True  # detect the collimator border and exclude it
-    field_threshold: float = 0.35  # collimator: darker than this fraction of the central image level
-    border_margin_px: int = 6  # erosion of the field (and margin at the image border), px
+    vessels: str = field(default="dark", metadata={"help": "dark: vessels darker than the background (X-ray intensity); bright: an inverted display"})
+    smoothing_px: float = field(default=1.0, metadata={"help": "sigma of the Gaussian pre-smoothing, px (0: none)"})
+    background_px: int = field(default=41, metadata={"help": "side of the square grey closing that estimates the background, px; larger than the widest vessel"})
+    method: str = field(default="sato", metadata={"help": "multiscale vesselness filter of scikit-image: sato or frangi"})
+    sigmas_px: tuple[float, ...] = field(default=(1.5, 2.5, 4.0), metadata={"help": "vesselness scales, px; vessels about 2-4 x sigma wide respond best"})
+    reference_percentile: float = field(default=99.9, metadata={"help": "percentile of the vesselness over the field that normalises it, %"})
+    low_threshold: float = field(default=0.1, metadata={"help": "hysteresis: low threshold on the normalised vesselness"})
+    high_threshold: float = field(default=0.3, metadata={"help": "hysteresis: high threshold on the normalised vesselness"})
+    seed_snr: float = field(default=5.0, metadata={"help": "a kept structure reaches seed_snr x the noise sigma of the flattened image somewhere"})
+    edge_snr: float = field(default=2.0, metadata={"help": "edge refinement: pixels at least edge_snr x the noise sigma ..."})
+    edge_band_px: int = field(default=2, metadata={"help": "... within this distance of the detected structures, px"})
+    min_object_px: int = field(default=100, metadata={"help": "connected structures with fewer pixels are removed"})
+    collimator: bool = field(default=True, metadata={"help": "detect the collimator border and exclude it"})
+    field_threshold: float = field(default=0.35, metadata={"help": "collimator: darker than this fraction of the level at the image centre, connected to the border"})
+    border_margin_px: int = field(default=6, metadata={"help": "erosion of the irradiated field (also from the image border), px"})
 
     def __post_init__(self) -> None:
         if self.vessels not in _POLARITIES:
@@ -131,6 +131,11 @@ class SegmentationParameters:
     def field_names(cls) -> tuple[str, ...]:
         """The names of the parameters, in order."""
         return tuple(f.name for f in fields(cls))
+
+    @classmethod
+    def describe(cls) -> dict[str, str]:
+        """``{name: one-line description with units}`` of every parameter (for help texts and docs)."""
+        return {f.name: f.metadata["help"] for f in fields(cls)}
 
     def replace(self, overrides: Optional[Mapping[str, Any]] = None, **kwargs: Any) -> "SegmentationParameters":
         """A copy with some fields changed; unknown names raise :class:`SegmentationError`.
