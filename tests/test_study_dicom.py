@@ -136,8 +136,7 @@ def test_view_sources_are_checked(tmp_path, runs):
 def test_rotational_run_needs_a_frame(tmp_path):
     carm = CARMS["lao"]
     frames = np.full((3, *SHAPE), 200, np.uint8)
-    path = write_xa(tmp_path / "rot.dcm", frames, PositionerPrimaryAngleIncrement=[0.0, 4.0, 8.0],
-                    **_header(carm))
+    write_xa(tmp_path / "rot.dcm", frames, PositionerPrimaryAngleIncrement=[0.0, 4.0, 8.0], **_header(carm))
     mask = np.zeros(SHAPE, bool)
     mask[100:110, 50:250] = True
     write_mask(tmp_path / "m.png", mask)

@@ -61,6 +61,11 @@ __all__ = [
 ]
 
 _METHODS = ("sato", "frangi")
+
+
+def _help(text: str) -> dict[str, str]:
+    """Field metadata: the one-line description (with units) shown by the CLI and the docs."""
+    return {"help": text}
 _POLARITIES = ("dark", "bright")
 
 
@@ -73,21 +78,36 @@ class SegmentationParameters:
     ``min_object_px`` (as the square) and ``edge_band_px`` with the pixel size.
     """
 
-    vessels: str = field(default="dark", metadata={"help": "dark: vessels darker than the background (X-ray intensity); bright: an inverted display"})
-    smoothing_px: float = field(default=1.0, metadata={"help": "sigma of the Gaussian pre-smoothing, px (0: none)"})
-    background_px: int = field(default=41, metadata={"help": "side of the square grey closing that estimates the background, px; larger than the widest vessel"})
-    method: str = field(default="sato", metadata={"help": "multiscale vesselness filter of scikit-image: sato or frangi"})
-    sigmas_px: tuple[float, ...] = field(default=(1.5, 2.5, 4.0), metadata={"help": "vesselness scales, px; vessels about 2-4 x sigma wide respond best"})
-    reference_percentile: float = field(default=99.9, metadata={"help": "percentile of the vesselness over the field that normalises it, %"})
-    low_threshold: float = field(default=0.1, metadata={"help": "hysteresis: low threshold on the normalised vesselness"})
-    high_threshold: float = field(default=0.3, metadata={"help": "hysteresis: high threshold on the normalised vesselness"})
-    seed_snr: float = field(default=5.0, metadata={"help": "a kept structure reaches seed_snr x the noise sigma of the flattened image somewhere"})
-    edge_snr: float = field(default=2.0, metadata={"help": "edge refinement: pixels at least edge_snr x the noise sigma ..."})
-    edge_band_px: int = field(default=2, metadata={"help": "... within this distance of the detected structures, px"})
-    min_object_px: int = field(default=100, metadata={"help": "connected structures with fewer pixels are removed"})
-    collimator: bool = field(default=True, metadata={"help": "detect the collimator border and exclude it"})
-    field_threshold: float = field(default=0.35, metadata={"help": "collimator: darker than this fraction of the level at the image centre, connected to the border"})
-    border_margin_px: int = field(default=6, metadata={"help": "erosion of the irradiated field (also from the image border), px"})
+    vessels: str = field(default="dark", metadata=_help(
+        "dark: vessels darker than the background (X-ray intensity); bright: an inverted display"))
+    smoothing_px: float = field(default=1.0, metadata=_help(
+        "sigma of the Gaussian pre-smoothing, px (0: none)"))
+    background_px: int = field(default=41, metadata=_help(
+        "side of the square grey closing that estimates the background, px; larger than the widest vessel"))
+    method: str = field(default="sato", metadata=_help(
+        "multiscale vesselness filter of scikit-image: sato or frangi"))
+    sigmas_px: tuple[float, ...] = field(default=(1.5, 2.5, 4.0), metadata=_help(
+        "vesselness scales, px; vessels about 2-4 x sigma wide respond best"))
+    reference_percentile: float = field(default=99.9, metadata=_help(
+        "percentile of the vesselness over the field that normalises it, %"))
+    low_threshold: float = field(default=0.1, metadata=_help(
+        "hysteresis: low threshold on the normalised vesselness"))
+    high_threshold: float = field(default=0.3, metadata=_help(
+        "hysteresis: high threshold on the normalised vesselness"))
+    seed_snr: float = field(default=5.0, metadata=_help(
+        "a kept structure reaches seed_snr x the noise sigma of the flattened image somewhere"))
+    edge_snr: float = field(default=2.0, metadata=_help(
+        "edge refinement: pixels at least edge_snr x the noise sigma ..."))
+    edge_band_px: int = field(default=2, metadata=_help(
+        "... within this distance of the detected structures, px"))
+    min_object_px: int = field(default=100, metadata=_help(
+        "connected structures with fewer pixels are removed"))
+    collimator: bool = field(default=True, metadata=_help(
+        "detect the collimator border and exclude it"))
+    field_threshold: float = field(default=0.35, metadata=_help(
+        "collimator: darker than this fraction of the level at the image centre, connected to the border"))
+    border_margin_px: int = field(default=6, metadata=_help(
+        "erosion of the irradiated field (also from the image border), px"))
 
     def __post_init__(self) -> None:
         if self.vessels not in _POLARITIES:
