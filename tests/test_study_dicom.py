@@ -142,6 +142,8 @@ def test_rotational_run_needs_a_frame(tmp_path):
     write_mask(tmp_path / "m.png", mask)
     _raises(tmp_path, [{"mask": "m.png", "dicom": "rot.dcm"}],
             r"views\[0\]\.dicom: view 'm': .*rot\.dcm: the geometry changes from frame to frame .*give a frame index \(0 to 2\)")
+    _raises(tmp_path, [{"mask": "m.png", "dicom": "rot.dcm", "frame": 5}],
+            r"views\[0\]\.frame: view 'm': .*rot\.dcm: frame 5 does not exist; the run has 3 frame\(s\)")
     _write(tmp_path, [{"mask": "m.png", "dicom": "rot.dcm", "frame": 2}])
     view = load_study(tmp_path).views[0]
     assert view.carm.primary_deg == carm.primary_deg + 8.0 and view.frame == 2

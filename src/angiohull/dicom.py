@@ -70,7 +70,6 @@ __all__ = [
     "read_xa_frame",
     "select_frame",
     "read_xa_view",
-    "is_dicom_file",
     "XA_SOP_CLASS",
     "ENHANCED_XA_SOP_CLASS",
 ]
@@ -303,19 +302,6 @@ class XAView:
 
 
 # -- reading the header ------------------------------------------------------------------------
-def is_dicom_file(path: PathLike) -> bool:
-    """True when the file starts with a DICOM Part 10 preamble (``DICM`` at byte 128) or ends in .dcm."""
-    path = Path(path)
-    if path.suffix.lower() in (".dcm", ".dicom"):
-        return True
-    try:
-        with open(path, "rb") as handle:
-            handle.seek(128)
-            return handle.read(4) == b"DICM"
-    except OSError:
-        return False
-
-
 def _read_dataset(path: Path, *, pixels: bool) -> Dataset:
     if not path.exists():
         raise DicomError(f"{path}: file not found; expected an X-ray angiography DICOM file")

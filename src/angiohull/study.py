@@ -559,9 +559,8 @@ def _dicom_geometry(entry: _ViewEntry, root: Path, header: dicom.XAHeader, shape
         frame = frame_used
     try:
         carm = header.geometry(frame)
-    except DicomError as exc:
-        field = f"{where}.frame" if entry.frame is not None and "frame" in str(exc) else f"{where}.dicom"
-        raise _Problem(field, f"view {name!r}: {exc}") from None
+    except DicomError as exc:  # a frame that does not exist, or none given for a rotational run
+        raise _Problem(f"{where}.frame" if entry.frame is not None else f"{where}.dicom", f"view {name!r}: {exc}") from None
     if carm.image_shape != shape:
         raise _Problem(f"{where}.dicom", f"view {name!r}: {path}: the image is {carm.image_shape[0]} x {carm.image_shape[1]} "
                                          f"pixels (Rows, Columns) but the mask is {shape[0]} x {shape[1]}; the mask must have "
@@ -852,9 +851,10 @@ def study_from_dicom(
     params = SegmentationParameters() if parameters is None else parameters
     overrides = _segmentation_overrides(params)
     try:
-        (folder / ("masks" if segment else "")).mkdir(parents=True, exist_ok=True)
-        if copy:
-            (folder / "dicom").mkdir(exist_ok=True)
+        folder.mkdir(parents=True, exist_ok=True)
+        for sub, wanted in (("masks", segment), ("dicom", copy)):
+            if wanted:
+                (folder / sub).mkdir(exist_ok=True)
     except OSError as exc:
         raise StudyError(f"{folder}: cannot create the study folder ({exc})") from None
     taken: set[str] = set()
