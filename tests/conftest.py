@@ -20,3 +20,13 @@ def peer_synthetic_dir() -> Path:
         pytest.skip(f"peer-synthetic benchmark not found at {folder} (clone the project beside ../shared, "
                     f"or set ANGIOHULL_SHARED)")
     return folder
+
+
+@pytest.fixture(scope="session")
+def ge_phantom_dir() -> Path:
+    """The three real GE XA runs of a static phantom (IM1, IM2, IM5), or a skip when ../shared is absent."""
+    folder = shared_root() / "data" / "ge-xa-phantom"
+    if not all((folder / f"IM{i}.dcm").is_file() for i in (1, 2, 5)):
+        pytest.skip(f"real XA phantom files not found at {folder} (clone the project beside ../shared, "
+                    f"or set ANGIOHULL_SHARED)")
+    return folder

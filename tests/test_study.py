@@ -371,16 +371,16 @@ def test_two_geometry_sources(tmp_path: Path) -> None:
     _raises_at(tmp_path, document, r"views\[0\]: view 'a' has 2 geometry sources \(carm, projection_matrix\); give exactly one")
 
 
-def test_dicom_is_not_supported_yet(tmp_path: Path) -> None:
+def test_missing_dicom_file(tmp_path: Path) -> None:
     document = _document()
     document["views"][1] = {"mask": "masks/b.png", "dicom": "dicom/run3.dcm", "frame": 12}
-    _raises_at(tmp_path, document, r"views\[1\]\.dicom: DICOM geometry is not supported in this version of angiohull yet.*give carm: .*or projection_matrix: .*instead")
+    _raises_at(tmp_path, document, r"views\[1\]\.dicom: view 'b': .*run3\.dcm: file not found; expected an X-ray angiography DICOM file")
 
 
 def test_frame_without_dicom(tmp_path: Path) -> None:
     document = _document()
     document["views"][0]["frame"] = 3
-    _raises_at(tmp_path, document, r"views\[0\]: view 'a': frame: is only used with dicom:")
+    _raises_at(tmp_path, document, r"views\[0\]: view 'a': frame: is only used with dicom: or a DICOM image:, got frame: 3")
 
 
 def test_duplicate_names(tmp_path: Path) -> None:
@@ -427,7 +427,8 @@ def test_empty_mask(tmp_path: Path) -> None:
 def test_missing_mask_key(tmp_path: Path) -> None:
     document = _document()
     del document["views"][0]["mask"]
-    _raises_at(tmp_path, document, r"views\[0\]\.mask: required key is missing")
+    _raises_at(tmp_path, document, r"views\[0\]: view 'a' has neither mask: nor image:; give exactly one of mask: \(a binary "
+                                   r"vessel mask\) or image: \(a raw angiogram")
 
 
 def test_bad_ground_truth(tmp_path: Path) -> None:
@@ -445,7 +446,8 @@ def test_view_entry_not_a_mapping(tmp_path: Path) -> None:
     document["views"].append(7)
     document["views"][0]["carm"] = [1, 2]
     error = _raises_at(tmp_path, document, r"views\[0\]\.carm: expected a mapping with keys from: primary_deg, .*got \[1, 2\] \(list\)")
-    assert "views[2]: expected a mapping with keys from: name, mask, carm, projection_matrix, dicom, frame; got 7 (int)" in str(error)
+    assert ("views[2]: expected a mapping with keys from: name, mask, carm, projection_matrix, dicom, frame, image, "
+            "segmentation; got 7 (int)") in str(error)
 
 
 def test_key_that_is_not_text(tmp_path: Path) -> None:

@@ -6,11 +6,12 @@ import argparse
 import json
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Sequence, TextIO
 
 from . import __version__
-from .errors import AngiohullError
+from .errors import AngiohullError, DicomGeometryWarning
 from .reconstruction import AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES
 from .synthetic.render import RASTERISERS
 from .synthetic.tree import TORTUOSITY_LEVELS, TREE_KINDS
@@ -102,6 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "rotate, all views otherwise)")
     p.add_argument("--seed", type=int, default=None, help="seed of every random draw (default: fresh, recorded)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+    _add_dicom_commands(sub)
     return parser
 
 
@@ -213,7 +215,165 @@ def _cmd_synth(args) -> int:
     return 0
 
 
-_COMMANDS = {"reconstruct": _cmd_reconstruct, "evaluate": _cmd_evaluate, "demo": _cmd_demo, "synth": _cmd_synth}
+# -- DICOM input and segmentation: dicom-info, segment, study-from-dicom ------------------------
+def _add_segmentation_options(parser: argparse.ArgumentParser) -> None:
+    """One option per field of SegmentationParameters (defaults shown; see angiohull.segmentation)."""
+    from dataclasses import fields
+
+    from .segmentation import SegmentationParameters
+
+    group = parser.add_argument_group("segmentation parameters (angiohull.segmentation.SegmentationParameters)")
+    default = SegmentationParameters()
+    for item in fields(SegmentationParameters):
+        flag = "--" + item.name.replace("_", "-")
+        value = getattr(default, item.name)
+        text = f"{item.metadata['help']} (default {value if not isinstance(value, tuple) else ','.join(f'{v:g}' for v in value)})"
+        if isinstance(value, bool):
+            group.add_argument(flag, dest=f"seg_{item.name}", action=argparse.BooleanOptionalAction, default=None, help=text)
+        elif isinstance(value, tuple):
+            group.add_argument(flag, dest=f"seg_{item.name}", type=_float_list, default=None, metavar="S1,S2,...", help=text)
+        elif item.name in ("vessels", "method"):
+            choices = ("dark", "bright") if item.name == "vessels" else ("sato", "frangi")
+            group.add_argument(flag, dest=f"seg_{item.name}", choices=choices, default=None, help=text)
+        else:
+            group.add_argument(flag, dest=f"seg_{item.name}", type=type(value), default=None, metavar="N", help=text)
+
+
+def _float_list(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, e.g. 1.5,2.5,4, got {text!r}") from None
+
+
+def _segmentation_parameters(args):
+    from .segmentation import SegmentationParameters
+
+    prefix = "seg_"
+    overrides = {key[len(prefix):]: value for key, value in vars(args).items() if key.startswith(prefix) and value is not None}
+    return SegmentationParameters().replace(overrides)
+
+
+def _add_dicom_commands(sub) -> None:
+    p = sub.add_parser("dicom-info", help="show the geometry angiohull reads from XA DICOM files",
+                       description="One line per file (and per frame where the geometry changes, or with --frames): "
+                                   "modality, frames, C-arm angles, SID, SOD, pixel spacing and where it came from.")
+    p.add_argument("files", type=Path, nargs="+", metavar="FILE", help="XA DICOM files")
+    p.add_argument("--frames", action="store_true", help="one line per frame, even when all frames share one geometry")
+
+    p = sub.add_parser("segment", help="segment the vessels of a raw angiogram into a binary mask",
+                       description="Segment the vessels of one frame of an XA DICOM file (or of a PNG/TIFF/NPY image) "
+                                   "and write the mask (PNG/TIFF/NPY by extension).")
+    p.add_argument("input", type=Path, metavar="INPUT", help="XA DICOM file, or a grey-scale PNG/TIFF/NPY image")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="MASK", help="the mask to write (.png, .tif, .npy)")
+    p.add_argument("--frame", type=int, default=None, metavar="N",
+                   help="frame index from 0 (default: the frame with the most contrast, or the end-diastolic frame nearest to it)")
+    _add_segmentation_options(p)
+
+    p = sub.add_parser("study-from-dicom", help="build a study folder from XA runs",
+                       description="Write a study folder (study.yaml) with one view per XA file, geometry from the "
+                                   "headers; with --segment the masks are segmented now, otherwise the views name the "
+                                   "DICOM image and are segmented when the study is loaded.")
+    p.add_argument("files", type=Path, nargs="+", metavar="FILE", help="XA DICOM files")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="STUDY_DIR", help="the study folder to write")
+    p.add_argument("--segment", action="store_true", help="segment now and write masks/<name>.png")
+    frames = p.add_mutually_exclusive_group()
+    frames.add_argument("--frame", type=int, default=None, metavar="N", help="use frame N (from 0) of every file "
+                        "(default: chosen automatically per file and written as frame:)")
+    frames.add_argument("--all-frames", action="store_true", help="one view per frame (e.g. a rotational run)")
+    p.add_argument("--reference", action="store_true",
+                   help="refer to the files where they are (relative paths) instead of copying them into STUDY_DIR/dicom/")
+    _add_segmentation_options(p)
+
+
+def _format_spacing(frame) -> str:
+    return f"{frame.pixel_spacing_mm[0]:g} x {frame.pixel_spacing_mm[1]:g} mm"
+
+
+def _cmd_dicom_info(args) -> int:
+    from .dicom import read_xa_header
+
+    status = 0
+    for path in args.files:
+        try:
+            with warnings.catch_warnings():  # the line itself says where the spacing came from
+                warnings.simplefilter("ignore", DicomGeometryWarning)
+                header = read_xa_header(path)
+        except AngiohullError as error:
+            print(f"angiohull dicom-info: error: {error}", file=sys.stderr)
+            status = 2
+            continue
+        first = header.frames[0]
+        rows, cols = header.image_shape
+        ecg = (f", end-diastolic frames {list(header.end_diastolic_frames)} (from {header.ecg_source})"
+               if header.end_diastolic_frames else "")
+        kind = header.modality if header.sop_class == "XA" else f"{header.modality} ({header.sop_class})"
+        line = f"{path}: {kind}, {header.n_frames} frame{'s' if header.n_frames != 1 else ''}, {rows}x{cols}"
+        if header.varying_geometry:
+            print(f"{line}, geometry varies by frame (angles from {header.angle_source}){ecg}")
+        else:
+            print(f"{line}, primary {first.primary_deg:g} secondary {first.secondary_deg:g} ({first.clinical}), "
+                  f"SID {first.sid_mm:g} mm, SOD {first.sod_mm:g} mm, spacing {_format_spacing(first)} "
+                  f"(from {header.spacing_source}){ecg}")
+        if header.varying_geometry or args.frames:
+            for frame in header.frames:
+                print(f"{path} frame {frame.frame}: primary {frame.primary_deg:g} secondary {frame.secondary_deg:g} "
+                      f"({frame.clinical}), SID {frame.sid_mm:g} mm, SOD {frame.sod_mm:g} mm, spacing {_format_spacing(frame)}")
+    return status
+
+
+def _cmd_segment(args) -> int:
+    from . import io
+    from .dicom import read_xa_view
+    from .segmentation import segment_vessels
+
+    params = _segmentation_parameters(args)
+    if args.input.suffix.lower() in io.IMAGE_SUFFIXES:
+        if args.frame is not None:
+            raise AngiohullError(f"{args.input}: --frame is only used with a DICOM file")
+        image, where = io.read_image(args.input), str(args.input)
+    else:
+        view = read_xa_view(args.input, args.frame, parameters=params)
+        image, where = view.image, f"{args.input} frame {view.frame} ({view.selection.reason}; {view.carm.clinical_name()})"
+    mask = segment_vessels(image, params)
+    if not mask.any():
+        raise AngiohullError(f"{where}: the segmentation found no vessel; nothing written (try a lower --high-threshold "
+                             "or --seed-snr, or --vessels bright for an inverted display)")
+    io.write_mask(args.output, mask)
+    print(f"{where}: {int(mask.sum())} vessel pixels of {mask.size}; wrote {args.output}")
+    return 0
+
+
+def _cmd_study_from_dicom(args) -> int:
+    from .study import study_from_dicom
+
+    yaml_path, views = study_from_dicom(args.files, args.output, segment=args.segment, frame=args.frame,
+                                        all_frames=args.all_frames, copy=not args.reference,
+                                        parameters=_segmentation_parameters(args))
+    for view in views:
+        pixels = f", {view.mask_pixels} vessel pixels" if view.mask_pixels is not None else ""
+        print(f"{view.name}: {view.source_file} frame {view.frame} ({view.selection}), {view.carm.clinical_name()}{pixels}")
+    print(f"wrote {yaml_path} ({len(views)} view{'s' if len(views) != 1 else ''})")
+    return 0
+
+
+_COMMANDS = {"reconstruct": _cmd_reconstruct, "evaluate": _cmd_evaluate, "demo": _cmd_demo, "synth": _cmd_synth,
+             "dicom-info": _cmd_dicom_info, "segment": _cmd_segment, "study-from-dicom": _cmd_study_from_dicom}
+
+
+class _WarningPrinter:
+    """angiohull's own warnings as one line on stderr, each message once (others keep Python's format)."""
+
+    def __init__(self):
+        self.seen: set[str] = set()
+        self.python = warnings.showwarning
+
+    def __call__(self, message, category, filename, lineno, file=None, line=None) -> None:
+        if not issubclass(category, DicomGeometryWarning):
+            self.python(message, category, filename, lineno, file, line)
+        elif str(message) not in self.seen:
+            self.seen.add(str(message))
+            print(f"angiohull: warning: {message}", file=sys.stderr)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -221,7 +381,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return _COMMANDS[args.command](args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _WarningPrinter()
+            warnings.simplefilter("always", DicomGeometryWarning)  # the printer shows each message once
+            return _COMMANDS[args.command](args)
     except AngiohullError as error:
         print(f"angiohull {args.command}: error: {error}", file=sys.stderr)
         return 2

@@ -13,6 +13,9 @@ __all__ = [
     "StudyError",
     "ReconstructionError",
     "EmptyHullError",
+    "DicomError",
+    "SegmentationError",
+    "DicomGeometryWarning",
 ]
 
 
@@ -29,6 +32,18 @@ class StudyError(AngiohullError):
 
     The message starts with the file (and, for YAML, the field) that is at fault.
     """
+
+
+class DicomError(StudyError):
+    """A DICOM file cannot be used: not an X-ray angiogram, a missing or absurd tag, undecodable pixels.
+
+    The message starts with the file and names the tag (keyword and ``(gggg,eeee)``) at fault and,
+    where it helps, what to install or change.
+    """
+
+
+class SegmentationError(AngiohullError):
+    """The input or the parameters of the vessel segmentation are invalid."""
 
 
 class ReconstructionError(AngiohullError):
@@ -53,3 +68,12 @@ class EmptyHullError(ReconstructionError):
         self.view_index = view_index
         self.view_name = view_name
         self.points_before = points_before
+
+
+class DicomGeometryWarning(UserWarning):
+    """A geometry value was not in the DICOM file where it belongs and was derived from another tag.
+
+    The message names the file, the missing tag, the value assumed and the tag(s) it came from,
+    e.g. ``IM1.dcm: ImagerPixelSpacing (0018,1164) is missing; assumed 0.390625 x 0.390625 mm from
+    FieldOfViewDimensions (0018,1149) = [200, 200] mm over 512 x 512 pixels``.
+    """

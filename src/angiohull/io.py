@@ -19,16 +19,20 @@ from plyfile import PlyData, PlyElement, PlyParseError
 
 from .errors import StudyError
 
-__all__ = ["read_mask", "write_mask", "read_points", "write_points_ply", "MASK_SUFFIXES", "POINT_SUFFIXES"]
+__all__ = ["read_mask", "write_mask", "read_image", "read_points", "write_points_ply", "MASK_SUFFIXES", "IMAGE_SUFFIXES",
+           "POINT_SUFFIXES"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 
 #: File extensions :func:`read_mask` and :func:`write_mask` understand (lower case).
 MASK_SUFFIXES: tuple[str, ...] = (".png", ".tif", ".tiff", ".npy")
+#: File extensions :func:`read_image` understands (lower case); DICOM files are read by :mod:`angiohull.dicom`.
+IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".tif", ".tiff", ".npy")
 #: File extensions :func:`read_points` understands (lower case).
 POINT_SUFFIXES: tuple[str, ...] = (".npy", ".ply")
 
 _MASK_EXPECTED = "a 2D binary mask (rows, cols) as PNG, TIFF or NPY, nonzero = vessel"
+_IMAGE_EXPECTED = "a 2D grey-scale X-ray image (rows, cols) as PNG, TIFF or NPY"
 _POINTS_EXPECTED = "an (N, 3) array of x, y, z points in mm as .npy or .ply"
 _PLY_COMMENTS = ("units mm", "frame DICOM patient LPS")
 _ALPHA_BANDS = ("A", "a")
@@ -165,6 +169,50 @@ def write_mask(path: PathLike, mask: Any) -> None:
             image.save(path, format="PNG" if suffix == ".png" else "TIFF")
     except OSError as exc:
         raise StudyError(f"{path}: cannot write mask ({exc})") from None
+
+
+# -- raw images -------------------------------------------------------------------------------
+def read_image(path: PathLike) -> np.ndarray:
+    """Read a raw grey-scale X-ray image (for segmentation).
+
+    Parameters
+    ----------
+    path : str or path-like
+        A ``.png`` or ``.tif``/``.tiff`` (read with Pillow: 8- or 16-bit grey, float; colour images
+        are converted to their luminance, an alpha channel is dropped) or ``.npy`` file (a 2D
+        numeric array, ``allow_pickle=False``).
+
+    Returns
+    -------
+    image : ndarray of float64, shape (rows, cols)
+        The pixel values as stored.
+
+    Raises
+    ------
+    StudyError
+        If the file is missing or unreadable, has an unsupported extension, holds several frames,
+        is not 2D or empty, or holds non-numeric or non-finite values. The message starts with
+        the path.
+    """
+    path = Path(path)
+    suffix = _suffix(path, IMAGE_SUFFIXES, _IMAGE_EXPECTED)
+    _require_file(path, _IMAGE_EXPECTED)
+    if suffix == ".npy":
+        array = _load_npy(path, _IMAGE_EXPECTED)
+    else:
+        try:
+            with Image.open(path) as image:
+                frames = getattr(image, "n_frames", 1)
+                if frames != 1:
+                    raise StudyError(f"{path}: has {frames} frames; expected {_IMAGE_EXPECTED} (a single frame)")
+                if image.mode in ("RGB", "RGBA", "P", "PA", "CMYK", "YCbCr", "LAB", "HSV", "LA"):
+                    image = image.convert("L")
+                array = np.asarray(image)
+        except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
+            raise StudyError(f"{path}: cannot read as an image ({exc}); expected {_IMAGE_EXPECTED}") from None
+    if array.ndim != 2 or array.size == 0:
+        raise StudyError(f"{path}: expected {_IMAGE_EXPECTED}, got an array of shape {array.shape}")
+    return _numeric(array, str(path), _IMAGE_EXPECTED).astype(np.float64)
 
 
 # -- points -----------------------------------------------------------------------------------

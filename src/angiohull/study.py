@@ -10,9 +10,15 @@ A study is a folder with a ``study.yaml``::
                pixel_spacing_mm: [0.35, 0.35]}
       - mask: masks/view1.png
         projection_matrix: [[...], [...], [...]]   # 3x4
+      - image: dicom/run3.dcm         # a raw angiogram (DICOM or PNG/TIFF/NPY), segmented on loading
+        dicom: dicom/run3.dcm         # geometry from the XA header
+        frame: 12                     # optional frame index (from 0); default: chosen automatically
+        segmentation: {high_threshold: 0.25}   # optional overrides of SegmentationParameters
     ground_truth: gt.npy              # optional: (N, 3) points in mm (.npy or .ply)
 
-Paths are relative to the folder. :func:`load_study` checks everything and reports every problem
+Each view has exactly one geometry source (``carm``, ``projection_matrix`` or ``dicom``) and
+exactly one of ``mask`` (a binary vessel mask) and ``image`` (segmented with
+:func:`angiohull.segmentation.segment_vessels`). Paths are relative to the folder. :func:`load_study` checks everything and reports every problem
 it finds in one :class:`~angiohull.errors.StudyError`, one line per problem, each line
 ``<path to study.yaml>: <field>: <what was expected, what was received>``.
 """
@@ -20,6 +26,8 @@ it finds in one :class:`~angiohull.errors.StudyError`, one line per problem, eac
 from __future__ import annotations
 
 import math
+import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Iterable, Optional, Sequence, Union, get_args
@@ -29,11 +37,13 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from . import _validation as _v
-from . import io
-from .errors import GeometryError, StudyError
+from . import dicom, io
+from .errors import DicomError, GeometryError, SegmentationError, StudyError
 from .geometry import CArmGeometry, Projection
+from .segmentation import SegmentationParameters, segment_vessels
 
-__all__ = ["View", "Study", "load_study", "save_study", "FORMAT_VERSION", "STUDY_FILE"]
+__all__ = ["View", "Study", "load_study", "save_study", "study_from_dicom", "DicomViewSummary", "FORMAT_VERSION",
+           "STUDY_FILE"]
 
 #: Version of the ``study.yaml`` format this module reads and writes (the ``angiohull:`` key).
 FORMAT_VERSION = 1
@@ -66,10 +76,18 @@ class View:
     carm : CArmGeometry or None
         The C-arm pose the projection was computed from, or None when the view was given as a
         matrix. When given, ``projection`` must be exactly ``carm.projection()``.
-    source : {"carm", "projection_matrix"} or None
-        Where the geometry came from; None infers it from ``carm``.
+    source : {"carm", "projection_matrix", "dicom"} or None
+        Where the geometry came from; None infers it from ``carm`` ("carm" or
+        "projection_matrix"). A "dicom" view has the ``carm`` read from ``dicom_path``.
     mask_path : Path or None
-        The file the mask was read from, if any.
+        The file the mask was read from, if any (None when it was segmented from an image).
+    dicom_path : Path or None
+        The XA file the geometry was read from (``source == "dicom"`` only).
+    frame : int or None
+        The frame (from 0) of ``dicom_path`` whose geometry is used, or None when every frame
+        has the same geometry and none was named.
+    image_path : Path or None
+        The raw image the mask was segmented from, if any.
 
     Raises
     ------
@@ -83,6 +101,9 @@ class View:
     carm: Optional[CArmGeometry] = None
     source: Optional[str] = None
     mask_path: Optional[Path] = None
+    dicom_path: Optional[Path] = None
+    frame: Optional[int] = None
+    image_path: Optional[Path] = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -99,13 +120,23 @@ class View:
         self._check_source(source, where)
         object.__setattr__(self, "mask", _readonly_bool(mask))
         object.__setattr__(self, "source", source)
-        object.__setattr__(self, "mask_path", None if self.mask_path is None else Path(self.mask_path))
+        for name in ("mask_path", "dicom_path", "image_path"):
+            value = getattr(self, name)
+            object.__setattr__(self, name, None if value is None else Path(value))
 
     def _check_source(self, source: str, where: str) -> None:
-        if source not in ("carm", "projection_matrix"):
-            raise StudyError(f"{where}: source must be 'carm' or 'projection_matrix', got {source!r}")
-        if (source == "carm") != (self.carm is not None):
-            raise StudyError(f"{where}: source {source!r} needs carm {'given' if source == 'carm' else 'None'}, got {self.carm!r}")
+        if source not in ("carm", "projection_matrix", "dicom"):
+            raise StudyError(f"{where}: source must be 'carm', 'projection_matrix' or 'dicom', got {source!r}")
+        needs_carm = source in ("carm", "dicom")
+        if needs_carm != (self.carm is not None):
+            raise StudyError(f"{where}: source {source!r} needs carm {'given' if needs_carm else 'None'}, got {self.carm!r}")
+        if (source == "dicom") != (self.dicom_path is not None):
+            raise StudyError(f"{where}: dicom_path is given exactly for source 'dicom', got source {source!r} and "
+                             f"dicom_path {self.dicom_path!r}")
+        if self.frame is not None and (source != "dicom" or isinstance(self.frame, bool) or not isinstance(self.frame, int)
+                                       or self.frame < 0):
+            raise StudyError(f"{where}: frame must be an index >= 0 of a 'dicom' view's file, got frame {self.frame!r} "
+                             f"with source {source!r}")
         if self.carm is not None:
             if not isinstance(self.carm, CArmGeometry):
                 raise StudyError(f"{where}: carm must be a CArmGeometry, got {type(self.carm).__name__}")
@@ -116,6 +147,26 @@ class View:
     def from_carm(cls, name: str, mask: Any, carm: CArmGeometry, *, mask_path: Optional[Path] = None) -> "View":
         """A view whose projection is ``carm.projection()``; ``carm.image_shape`` must be the mask's."""
         return cls(name=name, mask=mask, projection=carm.projection(), carm=carm, source="carm", mask_path=mask_path)
+
+    @classmethod
+    def from_dicom(cls, name: str, mask: Any, dicom_path: Union[str, Path], frame: Optional[int] = None, *,
+                   mask_path: Optional[Path] = None, image_path: Optional[Path] = None) -> "View":
+        """A view whose geometry is read from an XA file's header (one frame, or the run's only geometry).
+
+        Raises
+        ------
+        DicomError
+            If the file cannot be read (see :func:`angiohull.dicom.read_xa_header`), the frame does
+            not exist or is needed (a rotational run), or the header's matrix size differs from
+            the mask's shape.
+        """
+        header = dicom.read_xa_header(dicom_path)
+        carm = header.geometry(frame)
+        if carm.image_shape != np.shape(mask):
+            raise DicomError(f"{dicom_path}: the image is {carm.image_shape[0]} x {carm.image_shape[1]} pixels (Rows, Columns) "
+                             f"but view {name!r}'s mask is {np.shape(mask)}; the mask must have the detector's shape")
+        return cls(name=name, mask=mask, projection=carm.projection(), carm=carm, source="dicom", mask_path=mask_path,
+                   dicom_path=Path(dicom_path), frame=None if frame is None else int(frame), image_path=image_path)
 
     @classmethod
     def from_matrix(cls, name: str, mask: Any, matrix: Any, *, mask_path: Optional[Path] = None) -> "View":
@@ -215,11 +266,13 @@ class _CArmEntry(_Strict):
 
 class _ViewEntry(_Strict):
     name: Optional[_Text] = None
-    mask: _Text
+    mask: Optional[_Text] = None
     carm: Optional[_CArmEntry] = None
     projection_matrix: Optional[list[list[float]]] = None
     dicom: Optional[_Text] = None
-    frame: Optional[int] = None
+    frame: Optional[Annotated[int, Field(ge=0)]] = None  # frame index from 0
+    image: Optional[_Text] = None  # a raw angiogram (DICOM, PNG, TIFF or NPY) to segment
+    segmentation: Optional[dict[str, Any]] = None  # overrides of SegmentationParameters
 
     @field_validator("projection_matrix")
     @classmethod
@@ -233,30 +286,31 @@ class _ViewEntry(_Strict):
             raise ValueError(f"expected 12 finite numbers, got non-finite values (nan or inf): {rows}")
         return rows
 
-    @field_validator("dicom")
-    @classmethod
-    def _no_dicom_yet(cls, value: Optional[str]) -> Optional[str]:
-        if value is not None:
-            raise ValueError(
-                f"DICOM geometry is not supported in this version of angiohull yet (got dicom: {value!r}); "
-                "give carm: (primary_deg, secondary_deg, sid_mm, sod_mm, pixel_spacing_mm) or "
-                "projection_matrix: (3x4) instead"
-            )
-        return value
-
     @model_validator(mode="after")
     def _one_source(self) -> "_ViewEntry":
         given = [key for key in _SOURCES if getattr(self, key) is not None]
         if len(given) != 1:
             found = "no geometry source" if not given else f"{len(given)} geometry sources ({', '.join(given)})"
             raise ValueError(f"view {self.resolved_name!r} has {found}; give exactly one of carm:, projection_matrix:, dicom:")
-        if self.frame is not None and self.dicom is None:
-            raise ValueError(f"view {self.resolved_name!r}: frame: is only used with dicom:, got frame: {self.frame}")
+        if (self.mask is None) == (self.image is None):
+            found = "neither mask: nor image:" if self.mask is None else "both mask: and image:"
+            raise ValueError(f"view {self.resolved_name!r} has {found}; give exactly one of mask: (a binary vessel mask) "
+                             "or image: (a raw angiogram, DICOM or PNG/TIFF/NPY, to segment)")
+        if self.frame is not None and self.dicom is None and self.image is None:
+            raise ValueError(f"view {self.resolved_name!r}: frame: is only used with dicom: or a DICOM image:, got frame: {self.frame}")
+        if self.segmentation is not None and self.image is None:
+            raise ValueError(f"view {self.resolved_name!r}: segmentation: is only used with image: (a mask: is not segmented), "
+                             f"got segmentation: {self.segmentation}")
         return self
 
     @property
     def resolved_name(self) -> str:
-        return self.name if self.name is not None else Path(self.mask).stem
+        if self.name is not None:
+            return self.name
+        for path in (self.mask, self.image, self.dicom):
+            if path is not None:
+                return Path(path).stem
+        return "?"
 
 
 class _StudyFile(_Strict):
@@ -425,22 +479,109 @@ def _geometry(entry: _ViewEntry, shape: tuple[int, int], field: str) -> tuple[Pr
         raise _Problem(field, str(exc)) from None
 
 
-def _load_view(index: int, entry: _ViewEntry, root: Path) -> View:
-    name, where = entry.resolved_name, f"views[{index}]"
-    mask_path = root / entry.mask
+def _read_view_mask(entry: _ViewEntry, root: Path, name: str, where: str,
+                    header: Optional[dicom.XAHeader] = None) -> tuple[np.ndarray, Optional[int]]:
+    """The view's mask (read, or segmented from its image) and the DICOM frame the image came from.
+
+    ``header`` is the geometry's XA header, reused when the image is the same file.
+    """
+    if entry.mask is not None:
+        mask_path = root / entry.mask
+        try:
+            mask = io.read_mask(mask_path)
+        except StudyError as exc:
+            raise _Problem(f"{where}.mask", f"view {name!r}: {exc}") from None
+        if not mask.any():
+            raise _Problem(
+                f"{where}.mask",
+                f"view {name!r}: {mask_path}: the mask has no vessel pixel (all {mask.shape[0]}x{mask.shape[1]} "
+                "pixels are zero); expected nonzero vessel pixels",
+            )
+        return mask, None
     try:
-        mask = io.read_mask(mask_path)
-    except StudyError as exc:
-        raise _Problem(f"{where}.mask", f"view {name!r}: {exc}") from None
+        params = SegmentationParameters().replace(entry.segmentation or {})
+    except SegmentationError as exc:
+        raise _Problem(f"{where}.segmentation", f"view {name!r}: {exc}") from None
+    image_path = root / str(entry.image)
+    frame_used = None
+    try:
+        if image_path.suffix.lower() in io.IMAGE_SUFFIXES:
+            if entry.frame is not None and entry.dicom is None:
+                raise _Problem(f"{where}.frame", f"view {name!r}: frame: is only used with dicom: or a DICOM image:, "
+                                                 f"but {image_path.name} is not a DICOM file")
+            image = io.read_image(image_path)
+        else:
+            same = header is not None and _same_file(header.path, image_path)
+            xa = dicom.read_xa_view(image_path, _image_frame(entry, root, image_path), parameters=params,
+                                    header=header if same else None)
+            image, frame_used = xa.image, xa.frame
+    except StudyError as exc:  # DicomError is a StudyError
+        raise _Problem(f"{where}.image", f"view {name!r}: {exc}") from None
+    mask = segment_vessels(image, params)
     if not mask.any():
         raise _Problem(
-            f"{where}.mask",
-            f"view {name!r}: {mask_path}: the mask has no vessel pixel (all {mask.shape[0]}x{mask.shape[1]} "
-            "pixels are zero); expected nonzero vessel pixels",
+            f"{where}.image",
+            f"view {name!r}: {image_path}: the segmentation found no vessel; check the image, or lower "
+            "segmentation: {high_threshold: ..., seed_snr: ...} (see angiohull.segmentation.SegmentationParameters)",
         )
+    return mask, frame_used
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve()
+    except OSError:  # pragma: no cover - unresolvable paths
+        return a == b
+
+
+def _image_frame(entry: _ViewEntry, root: Path, image_path: Path) -> Optional[int]:
+    """The frame of a DICOM image: ``frame:`` when it belongs to that file, else automatic (None)."""
+    if entry.frame is None:
+        return None
+    if entry.dicom is None or _same_file(root / entry.dicom, image_path):
+        return entry.frame
+    return None  # frame: names the geometry's frame in another file
+
+
+def _dicom_header(entry: _ViewEntry, root: Path, where: str, name: str) -> dicom.XAHeader:
+    try:
+        return dicom.read_xa_header(root / str(entry.dicom))
+    except DicomError as exc:
+        raise _Problem(f"{where}.dicom", f"view {name!r}: {exc}") from None
+
+
+def _dicom_geometry(entry: _ViewEntry, root: Path, header: dicom.XAHeader, shape: tuple[int, int], frame_used: Optional[int],
+                    where: str, name: str) -> tuple[CArmGeometry, Path, Optional[int]]:
+    """Geometry from ``dicom:``; the image's frame when the image is the same file and no frame: is given."""
+    path = root / str(entry.dicom)
+    frame = entry.frame
+    if frame is None and frame_used is not None and entry.image is not None and _same_file(path, root / entry.image):
+        frame = frame_used
+    try:
+        carm = header.geometry(frame)
+    except DicomError as exc:  # a frame that does not exist, or none given for a rotational run
+        raise _Problem(f"{where}.frame" if entry.frame is not None else f"{where}.dicom", f"view {name!r}: {exc}") from None
+    if carm.image_shape != shape:
+        raise _Problem(f"{where}.dicom", f"view {name!r}: {path}: the image is {carm.image_shape[0]} x {carm.image_shape[1]} "
+                                         f"pixels (Rows, Columns) but the mask is {shape[0]} x {shape[1]}; the mask must have "
+                                         "the detector's shape")
+    return carm, path, frame
+
+
+def _load_view(index: int, entry: _ViewEntry, root: Path) -> View:
+    name, where = entry.resolved_name, f"views[{index}]"
+    header = None if entry.dicom is None else _dicom_header(entry, root, where, name)
+    mask, frame_used = _read_view_mask(entry, root, name, where, header)
+    mask_path = None if entry.mask is None else root / entry.mask
+    image_path = None if entry.image is None else root / entry.image
+    if entry.dicom is not None:
+        carm, dicom_path, frame = _dicom_geometry(entry, root, header, mask.shape, frame_used, where, name)
+        return View(name=name, mask=mask, projection=carm.projection(), carm=carm, source="dicom", mask_path=mask_path,
+                    dicom_path=dicom_path, frame=frame, image_path=image_path)
     source = "carm" if entry.carm is not None else "projection_matrix"
     projection, carm = _geometry(entry, mask.shape, f"{where}.{source}")
-    return View(name=name, mask=mask, projection=projection, carm=carm, source=source, mask_path=mask_path)
+    return View(name=name, mask=mask, projection=projection, carm=carm, source=source, mask_path=mask_path,
+                image_path=image_path)
 
 
 def _load_ground_truth(relative: str, root: Path) -> tuple[np.ndarray, Path]:
@@ -472,9 +613,15 @@ def load_study(folder: Union[str, Path]) -> Study:
         One error listing every problem found, one line each, as
         ``<path to study.yaml>: <field, e.g. views[1].carm.sid_mm>: <expected, received>``:
         unreadable or malformed YAML, unknown or missing keys, wrong types, a format version other
-        than 1, zero or two geometry sources in a view, ``dicom:`` (not supported yet), duplicate
-        view names, missing, unreadable or empty masks, invalid C-arm parameters or matrices, and
-        an unreadable ground truth.
+        than 1, zero or two geometry sources in a view, zero or two of mask/image, duplicate view
+        names, missing, unreadable or empty masks, an image whose segmentation finds no vessel or
+        bad segmentation overrides, an unusable DICOM file (named tag), invalid C-arm parameters
+        or matrices, and an unreadable ground truth.
+
+    Warns
+    -----
+    DicomGeometryWarning
+        When a DICOM file's pixel spacing is derived from a fallback tag.
     """
     yaml_path = _study_file(folder)
     entries = _validate(yaml_path, _parse_yaml(yaml_path))
@@ -510,9 +657,21 @@ def _carm_entry(carm: CArmGeometry) -> dict[str, Any]:
     return entry
 
 
-def _view_entry(view: View, mask_file: str) -> dict[str, Any]:
+def _relative(path: Path, folder: Path) -> str:
+    """``path`` relative to ``folder`` (POSIX separators), or absolute when there is no relative path."""
+    try:
+        return Path(os.path.relpath(path.resolve(), folder.resolve())).as_posix()
+    except ValueError:  # e.g. another drive on Windows
+        return str(path.resolve())
+
+
+def _view_entry(view: View, mask_file: str, folder: Path) -> dict[str, Any]:
     entry: dict[str, Any] = {"name": view.name, "mask": mask_file}
-    if view.carm is not None:
+    if view.source == "dicom":
+        entry["dicom"] = _relative(Path(view.dicom_path), folder)
+        if view.frame is not None:
+            entry["frame"] = int(view.frame)
+    elif view.carm is not None:
         entry["carm"] = _carm_entry(view.carm)
     else:  # tolist() gives Python floats, which PyYAML writes with repr: exact round trip
         entry["projection_matrix"] = view.projection.matrix.tolist()
@@ -540,8 +699,10 @@ def save_study(
         and ``gt.npy`` are overwritten.
     views : iterable of View
         At least one, with unique names usable as file names. ``carm`` views are written as
-        ``carm:`` (plain floats), the others as ``projection_matrix:`` (every float at full
-        precision). Masks must contain at least one vessel pixel.
+        ``carm:`` (plain floats), ``dicom`` views as ``dicom:`` (the file's path relative to the
+        folder) and ``frame:``, the others as ``projection_matrix:`` (every float at full
+        precision). Masks (also those segmented from images) are written to ``masks/`` and must
+        contain at least one vessel pixel.
     ground_truth_mm : array_like, shape (N, 3), optional
         Ground-truth points in mm, written to ``gt.npy``.
     mask_format : {"png", "tiff", "tif", "npy"}
@@ -577,7 +738,7 @@ def save_study(
     for view in views:
         mask_file = f"masks/{view.name}{suffix}"
         io.write_mask(folder / mask_file, view.mask)
-        document["views"].append(_view_entry(view, mask_file))
+        document["views"].append(_view_entry(view, mask_file, folder))
     if points is not None:
         _save_points(folder / _GROUND_TRUTH_FILE, points)
         document["ground_truth"] = _GROUND_TRUTH_FILE
@@ -600,3 +761,149 @@ def _write_yaml(yaml_path: Path, document: dict[str, Any]) -> Path:
     except OSError as exc:
         raise StudyError(f"{yaml_path}: cannot write the study file ({exc})") from None
     return yaml_path
+
+
+# -- building a study from XA runs ----------------------------------------------------------
+@dataclass(frozen=True)
+class DicomViewSummary:
+    """One view written by :func:`study_from_dicom`."""
+
+    name: str  # the view's name in study.yaml
+    source_file: Path  # the XA file it came from
+    frame: int  # the frame used, from 0
+    selection: str  # how the frame was chosen
+    carm: CArmGeometry  # its geometry
+    mask_pixels: Optional[int]  # vessel pixels of the segmented mask, None when not segmented yet
+
+
+def _segmentation_overrides(params: SegmentationParameters) -> dict[str, Any]:
+    """The fields of ``params`` that differ from the defaults, as YAML-friendly values."""
+    default = SegmentationParameters()
+    changed = {}
+    for name in SegmentationParameters.field_names():
+        value = getattr(params, name)
+        if value != getattr(default, name):
+            changed[name] = list(value) if isinstance(value, tuple) else value
+    return changed
+
+
+def _unique(stem: str, taken: set[str]) -> str:
+    name, k = stem, 2
+    while name in taken:
+        name, k = f"{stem}_{k}", k + 1
+    taken.add(name)
+    return name
+
+
+def study_from_dicom(
+    files: Sequence[Union[str, Path]],
+    folder: Union[str, Path],
+    *,
+    segment: bool = False,
+    frame: Optional[int] = None,
+    all_frames: bool = False,
+    copy: bool = True,
+    parameters: Optional[SegmentationParameters] = None,
+) -> tuple[Path, list[DicomViewSummary]]:
+    """Write a study folder whose views come from XA runs (geometry from the headers).
+
+    Parameters
+    ----------
+    files : sequence of str or Path
+        XA DICOM files, one or more views each.
+    folder : str or Path
+        The study folder (created; an existing ``study.yaml`` and files of the same names are
+        overwritten).
+    segment : bool
+        Segment now and write ``masks/<name>.png`` (views get ``mask:``); otherwise views get
+        ``image:`` and are segmented each time the study is loaded.
+    frame : int, optional
+        Use this frame (from 0) of every file. Default: one frame per file, chosen automatically
+        (:func:`angiohull.dicom.select_frame`) and written as ``frame:`` so that the study is
+        reproducible.
+    all_frames : bool
+        One view per frame (e.g. a rotational run), named ``<stem>_f<frame>``.
+    copy : bool
+        Copy the files into ``<folder>/dicom/`` (a self-contained study); otherwise refer to
+        them by their path relative to the folder.
+    parameters : SegmentationParameters, optional
+        Segmentation (and frame scoring) parameters; non-default ones are written to each
+        ``image:`` view's ``segmentation:``.
+
+    Returns
+    -------
+    (Path, list of DicomViewSummary)
+        The written ``study.yaml`` and one summary per view.
+
+    Raises
+    ------
+    StudyError
+        No files, ``frame`` together with ``all_frames``, a file that cannot be used
+        (:class:`~angiohull.errors.DicomError`), a segmentation that finds no vessel, or a file
+        that cannot be written.
+    """
+    files = [Path(f) for f in files]
+    folder = Path(folder)
+    if not files:
+        raise StudyError(f"{folder}: study_from_dicom needs at least one DICOM file, got none")
+    if frame is not None and all_frames:
+        raise StudyError(f"{folder}: give either a frame or all_frames, not both")
+    params = SegmentationParameters() if parameters is None else parameters
+    overrides = _segmentation_overrides(params)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        for sub, wanted in (("masks", segment), ("dicom", copy)):
+            if wanted:
+                (folder / sub).mkdir(exist_ok=True)
+    except OSError as exc:
+        raise StudyError(f"{folder}: cannot create the study folder ({exc})") from None
+    taken: set[str] = set()
+    document: dict[str, Any] = {"angiohull": FORMAT_VERSION, "views": []}
+    summaries: list[DicomViewSummary] = []
+    for path in files:
+        header = dicom.read_xa_header(path)
+        stem = _unique(path.stem if path.suffix.lower() in (".dcm", ".dicom") else path.name, taken)
+        if copy:
+            target = folder / "dicom" / f"{stem}.dcm"
+            try:
+                if not (target.exists() and _same_file(target, path)):
+                    shutil.copyfile(path, target)
+            except OSError as exc:
+                raise StudyError(f"{target}: cannot copy {path} into the study ({exc})") from None
+            reference = f"dicom/{stem}.dcm"
+        else:
+            reference = _relative(path, folder)
+        images: dict[int, np.ndarray] = {}
+        if all_frames:
+            chosen = [(i, f"frame {i} of {header.n_frames} (all frames)") for i in range(header.n_frames)]
+            if segment:
+                images = dict(enumerate(dicom.read_xa_frames(path, header)))
+        elif frame is not None:
+            index = header.check_frame(frame)
+            chosen = [(index, f"frame {index} as requested")]
+        else:
+            view = dicom.read_xa_view(path, None, parameters=params, header=header)
+            chosen = [(view.frame, view.selection.reason)]
+            images = {view.frame: view.image}
+        for index, reason in chosen:
+            name = stem if len(chosen) == 1 else _unique(f"{stem}_f{index:03d}", taken)
+            entry: dict[str, Any] = {"name": name}
+            pixels = None
+            if segment:
+                image = images[index] if index in images else dicom.read_xa_frame(path, index, header)
+                mask = segment_vessels(image, params)
+                if not mask.any():
+                    raise StudyError(f"{path}: frame {index}: the segmentation found no vessel; check the run, or lower the "
+                                     "segmentation's high_threshold / seed_snr")
+                io.write_mask(folder / "masks" / f"{name}.png", mask)
+                entry["mask"] = f"masks/{name}.png"
+                pixels = int(np.count_nonzero(mask))
+            else:
+                entry["image"] = reference
+                if overrides:
+                    entry["segmentation"] = dict(overrides)
+            entry["dicom"] = reference
+            entry["frame"] = int(index)
+            document["views"].append(entry)
+            summaries.append(DicomViewSummary(name, path, int(index), reason, header.frames[index].carm(), pixels))
+    return _write_yaml(folder / STUDY_FILE, document), summaries

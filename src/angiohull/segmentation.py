@@ -1,0 +1,491 @@
+"""Vessel segmentation of raw X-ray angiograms (arrays in, arrays out).
+
+For users who have angiograms but no vessel masks. A classical pipeline on scikit-image, every step
+a well-known operation with a documented parameter (:class:`SegmentationParameters`):
+
+1. **Irradiated field** (:func:`detect_field`). The collimator shutters leave a dark band along the
+   image border (straight edges, often rounded corners, or a circle for an image intensifier). On
+   a smoothed copy, pixels darker than ``field_threshold`` x the level of the image centre that
+   are connected to the image border are the collimator; the rest, eroded by ``border_margin_px``, is the field. Pixels outside it are
+   never vessel and are replaced by the field's median before filtering, so that the shutter edge
+   does not look like a vessel.
+2. **Background flattening.** ``A = log(B / I)`` with ``I`` the image smoothed by
+   ``smoothing_px`` and ``B`` its grey-level closing with a ``background_px`` square (which
+   removes every dark structure narrower than that), smoothed. By Beer–Lambert, ``A`` is the
+   vessels' own attenuation: about 0 on the background, positive on the vessels, whatever the
+   body texture and exposure around them. Its median over the field is subtracted (the closing
+   follows the upper envelope of the noise) and its noise level ``sigma`` is estimated robustly
+   (1.4826 x the median absolute deviation over the field).
+3. **Multiscale vesselness** of ``A`` (bright ridges): :func:`skimage.filters.sato` (default) or
+   :func:`skimage.filters.frangi` at the scales ``sigmas_px``, divided by its
+   ``reference_percentile`` percentile over the field.
+4. **Hysteresis threshold** of the normalised vesselness (:func:`skimage.filters.apply_hysteresis_threshold`)
+   with ``low_threshold`` and ``high_threshold``; connected structures smaller than
+   ``min_object_px`` pixels (:func:`skimage.morphology.remove_small_objects`), or nowhere
+   ``seed_snr`` x sigma above the background in ``A``, are dropped (noise and texture ridges).
+5. **Edge refinement.** The vesselness response is wider than the vessel and blurred at its
+   edges, so the mask is the set of pixels with ``A >= edge_snr x sigma`` within
+   ``edge_band_px`` of the detected structures and connected to them: the mask's edge follows the
+   vessel's own contrast.
+6. **Small-object removal** once more, and the field mask.
+
+Vessels are dark on a bright background (``vessels="dark"``, as X-ray intensity is recorded);
+``vessels="bright"`` handles inverted displays. Images are 2D arrays of any real dtype; only their
+relative values matter (8-bit display values, 12-bit detector counts, or float intensities).
+
+Measured on angiogram-like images rendered from the demo phantom (:mod:`angiohull.synthetic.angiogram`):
+Dice against the true mask 0.96 on average with the defaults (see ``docs/dicom.md``).
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any, Mapping, Optional
+
+import numpy as np
+from scipy import ndimage as ndi
+from skimage import filters, morphology
+
+from .errors import SegmentationError
+
+__all__ = [
+    "SegmentationParameters",
+    "SegmentationResult",
+    "segment_vessels",
+    "segment_vessels_detailed",
+    "detect_field",
+    "flatten_background",
+    "vessel_contrast_score",
+]
+
+_METHODS = ("sato", "frangi")
+
+
+def _help(text: str) -> dict[str, str]:
+    """Field metadata: the one-line description (with units) shown by the CLI and the docs."""
+    return {"help": text}
+_POLARITIES = ("dark", "bright")
+
+
+@dataclass(frozen=True)
+class SegmentationParameters:
+    """Parameters of :func:`segment_vessels`; lengths in pixels of the input image.
+
+    The defaults suit 512 x 512 cardiac angiograms of about 0.2-0.3 mm per pixel at the isocentre
+    (vessels 4-20 pixels wide). For other resolutions scale ``sigmas_px``, ``background_px``,
+    ``min_object_px`` (as the square) and ``edge_band_px`` with the pixel size.
+    """
+
+    vessels: str = field(default="dark", metadata=_help(
+        "dark: vessels darker than the background (X-ray intensity); bright: an inverted display"))
+    smoothing_px: float = field(default=1.0, metadata=_help(
+        "sigma of the Gaussian pre-smoothing, px (0: none)"))
+    background_px: int = field(default=41, metadata=_help(
+        "side of the square grey closing that estimates the background, px; larger than the widest vessel"))
+    method: str = field(default="sato", metadata=_help(
+        "multiscale vesselness filter of scikit-image: sato or frangi"))
+    sigmas_px: tuple[float, ...] = field(default=(1.5, 2.5, 4.0), metadata=_help(
+        "vesselness scales, px; vessels about 2-4 x sigma wide respond best"))
+    reference_percentile: float = field(default=99.9, metadata=_help(
+        "percentile of the vesselness over the field that normalises it, %"))
+    low_threshold: float = field(default=0.1, metadata=_help(
+        "hysteresis: low threshold on the normalised vesselness"))
+    high_threshold: float = field(default=0.3, metadata=_help(
+        "hysteresis: high threshold on the normalised vesselness"))
+    seed_snr: float = field(default=5.0, metadata=_help(
+        "a kept structure reaches seed_snr x the noise sigma of the flattened image somewhere"))
+    edge_snr: float = field(default=2.0, metadata=_help(
+        "edge refinement: pixels at least edge_snr x the noise sigma ..."))
+    edge_band_px: int = field(default=2, metadata=_help(
+        "... within this distance of the detected structures, px"))
+    min_object_px: int = field(default=100, metadata=_help(
+        "connected structures with fewer pixels are removed"))
+    collimator: bool = field(default=True, metadata=_help(
+        "detect the collimator border and exclude it"))
+    field_threshold: float = field(default=0.35, metadata=_help(
+        "collimator: darker than this fraction of the level at the image centre, connected to the border"))
+    border_margin_px: int = field(default=6, metadata=_help(
+        "erosion of the irradiated field (also from the image border), px"))
+
+    def __post_init__(self) -> None:
+        if self.vessels not in _POLARITIES:
+            raise SegmentationError(f"vessels must be one of {list(_POLARITIES)}, got {self.vessels!r}")
+        if self.method not in _METHODS:
+            raise SegmentationError(f"method must be one of {list(_METHODS)}, got {self.method!r}")
+        if isinstance(self.collimator, (bool, np.bool_)):
+            object.__setattr__(self, "collimator", bool(self.collimator))
+        else:
+            raise SegmentationError(f"collimator must be true or false, got {self.collimator!r}")
+        for name in ("smoothing_px",):
+            _number(self, name, minimum=0.0)
+        for name in ("low_threshold", "high_threshold", "field_threshold", "seed_snr", "edge_snr"):
+            _number(self, name, minimum=0.0, strict=True)
+        _number(self, "reference_percentile", minimum=0.0, strict=True)
+        if self.reference_percentile > 100:
+            raise SegmentationError(f"reference_percentile must be within (0, 100], got {self.reference_percentile!r}")
+        if self.low_threshold > self.high_threshold:
+            raise SegmentationError(
+                f"low_threshold must not exceed high_threshold, got low_threshold={self.low_threshold} > "
+                f"high_threshold={self.high_threshold}"
+            )
+        if self.field_threshold >= 1:
+            raise SegmentationError(f"field_threshold must be a fraction below 1, got {self.field_threshold!r}")
+        _integer(self, "background_px", minimum=3)
+        _integer(self, "edge_band_px", minimum=0)
+        _integer(self, "min_object_px", minimum=0)
+        _integer(self, "border_margin_px", minimum=0)
+        sigmas = self.sigmas_px
+        if isinstance(sigmas, (int, float)) and not isinstance(sigmas, bool):
+            sigmas = (sigmas,)
+        try:
+            sigmas = tuple(float(s) for s in sigmas)
+        except (TypeError, ValueError):
+            raise SegmentationError(f"sigmas_px must be a list of positive numbers (px), got {self.sigmas_px!r}") from None
+        if not sigmas or not all(math.isfinite(s) and s > 0 for s in sigmas):
+            raise SegmentationError(f"sigmas_px must be a non-empty list of positive numbers (px), got {self.sigmas_px!r}")
+        object.__setattr__(self, "sigmas_px", sigmas)
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        """The names of the parameters, in order."""
+        return tuple(f.name for f in fields(cls))
+
+    @classmethod
+    def describe(cls) -> dict[str, str]:
+        """``{name: one-line description with units}`` of every parameter (for help texts and docs)."""
+        return {f.name: f.metadata["help"] for f in fields(cls)}
+
+    def replace(self, overrides: Optional[Mapping[str, Any]] = None, **kwargs: Any) -> "SegmentationParameters":
+        """A copy with some fields changed; unknown names raise :class:`SegmentationError`.
+
+        Parameters
+        ----------
+        overrides : mapping, optional
+            ``{field name: value}``, e.g. read from a ``segmentation:`` block of ``study.yaml``.
+        **kwargs
+            More fields by keyword.
+        """
+        changes = dict(overrides or {})
+        changes.update(kwargs)
+        known = self.field_names()
+        unknown = sorted(set(changes) - set(known))
+        if unknown:
+            raise SegmentationError(f"unknown segmentation parameter(s) {unknown}; known: {', '.join(known)}")
+        values = {name: getattr(self, name) for name in known}
+        values.update(changes)
+        return SegmentationParameters(**values)
+
+
+def _number(params: SegmentationParameters, name: str, *, minimum: float, strict: bool = False) -> None:
+    value = getattr(params, name)
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not math.isfinite(value):
+        raise SegmentationError(f"{name} must be a finite number, got {value!r}")
+    if value < minimum or (strict and value == minimum):
+        raise SegmentationError(f"{name} must be {'>' if strict else '>='} {minimum:g}, got {value!r}")
+    object.__setattr__(params, name, float(value))
+
+
+def _integer(params: SegmentationParameters, name: str, *, minimum: int) -> None:
+    value = getattr(params, name)
+    if isinstance(value, (float, np.floating)) and float(value).is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise SegmentationError(f"{name} must be an integer, got {value!r}")
+    if value < minimum:
+        raise SegmentationError(f"{name} must be >= {minimum}, got {value!r}")
+    object.__setattr__(params, name, int(value))
+
+
+@dataclass(frozen=True, eq=False)
+class SegmentationResult:
+    """The mask and the intermediate images of :func:`segment_vessels_detailed`.
+
+    Attributes
+    ----------
+    mask : ndarray of bool, shape (rows, cols)
+        Vessel pixels.
+    field : ndarray of bool, shape (rows, cols)
+        The irradiated field (after the margin) where vessels were searched.
+    attenuation : ndarray of float64, shape (rows, cols)
+        The flattened image ``A = log(B / I)`` (0 outside the field).
+    vesselness : ndarray of float64, shape (rows, cols)
+        The normalised multiscale vesselness (1 = its reference percentile).
+    noise_sigma : float
+        Robust noise level of ``attenuation`` over the field.
+    parameters : SegmentationParameters
+        The parameters used.
+    """
+
+    mask: np.ndarray
+    field: np.ndarray
+    attenuation: np.ndarray
+    vesselness: np.ndarray
+    noise_sigma: float
+    parameters: SegmentationParameters
+
+
+def _as_image(image: Any) -> np.ndarray:
+    try:
+        array = np.asarray(image)
+    except (TypeError, ValueError):
+        raise SegmentationError(f"image must be a 2D array of numbers, got {type(image).__name__}") from None
+    if array.ndim != 2:
+        hint = " (several frames? pick one, e.g. image[k])" if array.ndim == 3 else ""
+        raise SegmentationError(f"image must be a 2D (rows, cols) array, got shape {array.shape}{hint}")
+    if array.dtype.kind not in "biuf":
+        raise SegmentationError(f"image must hold real numbers, got dtype {array.dtype}")
+    if min(array.shape) < 8:
+        raise SegmentationError(f"image must be at least 8 x 8 pixels, got shape {array.shape}")
+    array = array.astype(np.float64)
+    if not np.all(np.isfinite(array)):
+        raise SegmentationError(f"image contains {int(np.count_nonzero(~np.isfinite(array)))} non-finite values (nan or inf)")
+    return array
+
+
+def _oriented(image: np.ndarray, vessels: str) -> np.ndarray:
+    """The image with vessels dark and every value positive (``log`` is taken later).
+
+    Intensities are kept as they are when positive (their ratios carry the attenuation); an image
+    with values <= 0 is shifted up first, and values below 1e-3 x the median are raised to that.
+    """
+    if vessels == "bright":
+        image = image.max() - image
+    low = float(image.min())
+    if low <= 0:
+        image = image - low
+    floor = 1e-3 * max(float(np.median(image)), 1e-12)
+    return np.maximum(image, floor)
+
+
+def detect_field(
+    image: Any,
+    *,
+    vessels: str = "dark",
+    threshold: float = 0.35,
+    margin_px: int = 6,
+) -> np.ndarray:
+    """The irradiated field of an X-ray image: everything but the collimator border, minus a margin.
+
+    Parameters
+    ----------
+    image : array_like, shape (rows, cols)
+        The raw image.
+    vessels : {"dark", "bright"}
+        Polarity of the display (for "bright" the image is inverted first, so that the collimator
+        is dark in both cases).
+    threshold : float
+        A pixel belongs to the collimator when the image smoothed with a Gaussian of sigma 2 px
+        is below ``threshold`` x the median of the central half of the image there, and that
+        dark region is connected to the image border (a vessel in the middle of the image is
+        never collimator, however dark).
+    margin_px : int
+        The field is eroded by this many pixels (also from the image border), to keep the
+        filters' border effects out.
+
+    Returns
+    -------
+    field : ndarray of bool, shape (rows, cols)
+    """
+    array = _oriented(_as_image(image), vessels)
+    rows, cols = array.shape
+    smooth = ndi.gaussian_filter(array, 2.0, mode="nearest")
+    level = float(np.median(smooth[rows // 4: rows - rows // 4, cols // 4: cols - cols // 4]))
+    dark = smooth < threshold * level
+    labels, _ = ndi.label(dark)
+    edge = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    field = ~np.isin(labels, edge[edge > 0])
+    if margin_px > 0:
+        field = ndi.binary_erosion(field, structure=np.ones((3, 3), bool), iterations=int(margin_px), border_value=0)
+    return field
+
+
+def _fill_outside(image: np.ndarray, field: np.ndarray) -> np.ndarray:
+    """``image`` with each pixel outside ``field`` replaced by the nearest field pixel's value.
+
+    Extending the field outwards this way creates no edge at the field's border (a constant
+    fill would, wherever the field is darker or brighter than that constant).
+    """
+    if field.all() or not field.any():
+        return image.copy()
+    _, (near_r, near_c) = ndi.distance_transform_edt(~field, return_indices=True)
+    return image[near_r, near_c]
+
+
+def flatten_background(image: np.ndarray, field: np.ndarray, params: SegmentationParameters) -> tuple[np.ndarray, float]:
+    """Step 2: the flattened attenuation ``A = log(B / I)`` and its robust noise sigma over the field."""
+    work = _fill_outside(image, field)
+    if params.smoothing_px > 0:
+        work = ndi.gaussian_filter(work, params.smoothing_px, mode="nearest")
+    background = ndi.grey_closing(work, size=(params.background_px, params.background_px), mode="nearest")
+    background = ndi.gaussian_filter(background, params.background_px / 5.0, mode="nearest")
+    attenuation = np.log(np.maximum(background, work)) - np.log(work)
+    attenuation[~field] = 0.0
+    values = attenuation[field]
+    if values.size == 0:
+        return attenuation, float("nan")
+    # The closing sits on the upper envelope of the noise: shift the background's median to 0.
+    centre = float(np.median(values))
+    attenuation[field] -= centre
+    mad = float(np.median(np.abs(values - centre)))
+    return attenuation, 1.4826 * mad
+
+
+def _vesselness(attenuation: np.ndarray, params: SegmentationParameters, sigmas: tuple[float, ...]) -> np.ndarray:
+    if params.method == "sato":
+        return filters.sato(attenuation, sigmas=sigmas, black_ridges=False, mode="reflect")
+    return filters.frangi(attenuation, sigmas=sigmas, black_ridges=False, mode="reflect")
+
+
+def _remove_small(mask: np.ndarray, min_pixels: int) -> np.ndarray:
+    """Drop connected components (8-connectivity) with fewer than ``min_pixels`` pixels."""
+    if min_pixels <= 1 or not mask.any():
+        return mask
+    if "max_size" in inspect.signature(morphology.remove_small_objects).parameters:  # scikit-image >= 0.26
+        return morphology.remove_small_objects(mask, max_size=min_pixels - 1, connectivity=2)
+    return morphology.remove_small_objects(mask, min_size=min_pixels, connectivity=2)
+
+
+def _keep_touching(candidates: np.ndarray, seeds: np.ndarray) -> np.ndarray:
+    """The connected components (8-connectivity) of ``candidates`` that contain a seed pixel."""
+    labels, count = ndi.label(candidates, structure=np.ones((3, 3), bool))
+    if count == 0:
+        return candidates
+    hit = np.zeros(count + 1, dtype=bool)
+    hit[labels[seeds & candidates]] = True
+    hit[0] = False
+    return hit[labels]
+
+
+def segment_vessels_detailed(image: Any, parameters: Optional[SegmentationParameters] = None, *,
+                             field: Optional[np.ndarray] = None) -> SegmentationResult:
+    """Segment the vessels of a raw angiogram and return the intermediate images too.
+
+    Parameters
+    ----------
+    image : array_like, shape (rows, cols)
+        One raw X-ray frame (any real dtype), vessels dark unless ``parameters.vessels == "bright"``.
+    parameters : SegmentationParameters, optional
+        Defaults to ``SegmentationParameters()``.
+    field : array_like of bool, shape (rows, cols), optional
+        The irradiated field, if known (e.g. from the DICOM shutter tags); default: detected with
+        :func:`detect_field` when ``parameters.collimator``, else the whole image minus the margin.
+
+    Returns
+    -------
+    SegmentationResult
+    """
+    params = SegmentationParameters() if parameters is None else parameters
+    if not isinstance(params, SegmentationParameters):
+        raise SegmentationError(f"parameters must be SegmentationParameters, got {type(params).__name__}")
+    raw = _as_image(image)
+    work = _oriented(raw, params.vessels)
+    if field is not None:
+        area = np.asarray(field)
+        if area.shape != raw.shape:
+            raise SegmentationError(f"field must have the image's shape {raw.shape}, got {area.shape}")
+        area = area.astype(bool)
+    elif params.collimator:
+        area = detect_field(raw, vessels=params.vessels, threshold=params.field_threshold, margin_px=params.border_margin_px)
+    else:
+        area = ndi.binary_erosion(np.ones(raw.shape, bool), iterations=params.border_margin_px, border_value=0) \
+            if params.border_margin_px else np.ones(raw.shape, bool)
+    attenuation, sigma = flatten_background(work, area, params)
+    vesselness = _vesselness(attenuation, params, params.sigmas_px)
+    vesselness[~area] = 0.0
+    inside = vesselness[area]
+    reference = float(np.percentile(inside, params.reference_percentile)) if inside.size else 0.0
+    empty = np.zeros(raw.shape, dtype=bool)
+    if not (reference > 0 and sigma > 0 and math.isfinite(sigma)):
+        return SegmentationResult(empty, area, attenuation, np.zeros(raw.shape), float(sigma) if inside.size else float("nan"), params)
+    normalised = vesselness / reference
+    detected = filters.apply_hysteresis_threshold(normalised, params.low_threshold, params.high_threshold) & area
+    detected = _remove_small(detected, params.min_object_px)
+    detected = _keep_touching(detected, attenuation >= params.seed_snr * sigma)
+    grown = (attenuation >= params.edge_snr * sigma) & area
+    if params.edge_band_px > 0:
+        grown &= ndi.binary_dilation(detected, structure=np.ones((3, 3), bool), iterations=params.edge_band_px)
+    else:
+        grown &= detected
+    mask = _keep_touching(grown, detected)
+    mask = _remove_small(mask, params.min_object_px) & area
+    return SegmentationResult(mask, area, attenuation, normalised, float(sigma), params)
+
+
+def segment_vessels(image: Any, parameters: Optional[SegmentationParameters] = None, *,
+                    field: Optional[np.ndarray] = None) -> np.ndarray:
+    """Segment the vessels of a raw angiogram (see the module notes for the pipeline).
+
+    Parameters
+    ----------
+    image : array_like, shape (rows, cols)
+        One raw X-ray frame (any real dtype), vessels dark unless ``parameters.vessels == "bright"``.
+    parameters : SegmentationParameters, optional
+        Defaults to ``SegmentationParameters()``.
+    field : array_like of bool, shape (rows, cols), optional
+        The irradiated field, if known; default: detected (see :func:`segment_vessels_detailed`).
+
+    Returns
+    -------
+    mask : ndarray of bool, shape (rows, cols)
+        True on vessel pixels. May be empty (no vessel found).
+
+    Raises
+    ------
+    SegmentationError
+        If the image is not a finite 2D numeric array of at least 8 x 8 pixels, or the
+        parameters are invalid.
+    """
+    return segment_vessels_detailed(image, parameters, field=field).mask
+
+
+def vessel_contrast_score(image: Any, parameters: Optional[SegmentationParameters] = None, *,
+                          downsample: int = 4, snr: float = 4.0) -> float:
+    """How much contrast-filled vessel a frame shows, relative to its noise (for frame selection).
+
+    The frame is block-averaged by ``downsample`` (cheap, and less noisy), the collimator masked
+    and the background flattened as in :func:`segment_vessels` (window and smoothing scaled by
+    ``1 / downsample``), giving the vessels' attenuation ``A`` and its robust noise ``sigma``.
+    The score is the sum of ``A`` over the pixels where ``A >= snr x sigma``, divided by
+    ``sigma``: it grows with the area and the darkness of the opacified vessels and falls with
+    the noise, so within one run it peaks on the frame whose vessels stand out most (during an
+    injection: when the contrast has filled them; in a static run: the least noisy frame).
+
+    Parameters
+    ----------
+    image : array_like, shape (rows, cols)
+        One raw frame.
+    parameters : SegmentationParameters, optional
+        Polarity, background window, smoothing and collimator settings (defaults otherwise).
+    downsample : int
+        Block size of the averaging (>= 1).
+    snr : float
+        Pixels count when their attenuation is at least this many noise sigmas.
+
+    Returns
+    -------
+    score : float
+        >= 0; 0 when nothing stands out of the noise.
+    """
+    params = SegmentationParameters() if parameters is None else parameters
+    if isinstance(downsample, bool) or not isinstance(downsample, (int, np.integer)) or downsample < 1:
+        raise SegmentationError(f"downsample must be an integer >= 1, got {downsample!r}")
+    if not (isinstance(snr, (int, float)) and math.isfinite(snr) and snr > 0):
+        raise SegmentationError(f"snr must be a positive number, got {snr!r}")
+    raw = _as_image(image)
+    rows, cols = raw.shape
+    f = int(min(downsample, max(1, min(rows, cols) // 16)))
+    small = raw[: rows // f * f, : cols // f * f].reshape(rows // f, f, cols // f, f).mean(axis=(1, 3))
+    work = _oriented(small, params.vessels)
+    margin = int(math.ceil(params.border_margin_px / f))
+    if params.collimator:
+        area = detect_field(small, vessels=params.vessels, threshold=params.field_threshold, margin_px=margin)
+    else:
+        area = ndi.binary_erosion(np.ones(small.shape, bool), iterations=margin, border_value=0) if margin else np.ones(small.shape, bool)
+    scaled = params.replace(background_px=max(3, int(round(params.background_px / f)) | 1), smoothing_px=params.smoothing_px / f)
+    attenuation, sigma = flatten_background(work, area, scaled)
+    if not (sigma > 0 and math.isfinite(sigma)):
+        return 0.0
+    values = attenuation[area]
+    return float(values[values >= snr * sigma].sum() / sigma)
