@@ -4,7 +4,8 @@ Run from the repository root (after `pip install .`):
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/segmentation.py [--seeds 2]
 
-Images: the demo phantom rendered by angiohull.synthetic.angiogram (Beer-Lambert attenuation of the
+Images: synthetic coronary trees (per seed and view, an RCA or left tree of each tortuosity level in
+turn, angiohull.synthetic.generate_tree) rendered by angiohull.synthetic.angiogram (Beer-Lambert attenuation of the
 exact chord through the tubes, smooth body texture, quantum and electronic noise, detector blur) in
 six views -- the three demo views (RAO 30 CRA 30, LAO 60 CRA 30, RAO 30 CAU 30) and LAO 75 CAU 20,
 RAO 55 CRA 10, LAO 20 CRA 40 -- 512 x 512 pixels of 0.35 mm, SID 1200 mm, SOD 800 mm, one image per
@@ -23,7 +24,7 @@ import numpy as np
 
 from angiohull.geometry import CArmGeometry
 from angiohull.segmentation import SegmentationParameters, segment_vessels
-from angiohull.synthetic import demo_phantom, demo_views
+from angiohull.synthetic import TORTUOSITY_LEVELS, demo_views, generate_tree
 from angiohull.synthetic.angiogram import AngiogramParameters, render_angiogram
 
 SETTINGS = {
@@ -49,13 +50,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=2, help="images per view and setting (default 2)")
     args = parser.parse_args()
-    phantom = demo_phantom()
+    kinds = [(kind, level) for kind in ("rca", "left") for level in TORTUOSITY_LEVELS]
     print(f"# Python {platform.python_version()}, {platform.machine()}, {args.seeds} seed(s) x {len(views())} views per row")
     print("| renderer setting | segmentation | mean Dice | min Dice | time per image (s) |")
     print("|---|---|---|---|---|")
     for setting, render_params in SETTINGS.items():
-        images = [render_angiogram(phantom, carm, 1000 * seed + i, render_params)
-                  for seed in range(args.seeds) for i, carm in enumerate(views())]
+        images = []
+        for seed in range(args.seeds):
+            for i, carm in enumerate(views()):
+                kind, level = kinds[(seed * len(views()) + i) % len(kinds)]
+                tree = generate_tree(kind, level, 1000 * seed + i)
+                images.append(render_angiogram(tree.phantom, carm, 1000 * seed + i, render_params))
         for method, seg_params in METHODS.items():
             scores, times = [], []
             for image in images:

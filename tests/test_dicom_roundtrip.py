@@ -8,12 +8,12 @@ from angiohull.dicom import read_xa_view
 from angiohull.geometry import CArmGeometry, parse_clinical_angles
 from angiohull.metrics import scores_3d
 from angiohull.reconstruction import reconstruct
-from angiohull.synthetic import demo_phantom
+from angiohull.synthetic import generate_tree
 
 from _dicom_files import write_xa
 
 VIEWS = ("LAO 45 CRA 20", "RAO 30 CAU 25", "LAO 10 CAU 30", "RAO 60 CRA 15")
-SID, SOD, SPACING, SHAPE = 1150.0, 780.0, (0.3, 0.3), (400, 400)
+SID, SOD, SPACING, SHAPE = 1150.0, 780.0, (0.3, 0.3), (560, 560)
 BACKGROUND, VESSEL = 200, 40  # dark vessels on a bright field, as an angiogram stores them
 
 
@@ -24,7 +24,7 @@ def _carm(name):
 
 @pytest.fixture(scope="module")
 def phantom():
-    return demo_phantom()
+    return generate_tree("rca", "moderate", 3).phantom
 
 
 @pytest.fixture(scope="module")

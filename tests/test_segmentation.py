@@ -12,11 +12,11 @@ from angiohull.segmentation import (
     segment_vessels_detailed,
     vessel_contrast_score,
 )
-from angiohull.synthetic import demo_phantom, demo_views
+from angiohull.synthetic import demo_phantom, demo_views, generate_tree
 from angiohull.synthetic.angiogram import AngiogramParameters, render_angiogram
 
 # The acceptance level of the issue: Dice >= 0.85 against the true mask. Measured with the
-# default parameters on the five images of `rendered` (docs/dicom.md): 0.968, 0.956, 0.965, 0.950, 0.962.
+# default parameters on the five images of `rendered` (docs/dicom.md): 0.927, 0.936, 0.935, 0.938, 0.949.
 DICE_REQUIRED = 0.85
 
 
@@ -31,11 +31,16 @@ def _views():
     return [carm for _, carm in demo_views()] + extra
 
 
+TREES = [("rca", "moderate", 0), ("left", "moderate", 1), ("rca", "tortuous", 2), ("left", "simple", 3),
+         ("rca", "simple", 4)]
+
+
 @pytest.fixture(scope="module")
 def rendered():
-    """Angiogram-like images of the demo phantom, with a collimator border, one seed per view."""
-    phantom = demo_phantom()
-    return [render_angiogram(phantom, carm, seed, AngiogramParameters(collimator_px=8)) for seed, carm in enumerate(_views())]
+    """Angiogram-like images of five synthetic coronary trees (one per view), with a collimator border."""
+    trees = [generate_tree(*spec).phantom for spec in TREES]
+    return [render_angiogram(tree, carm, seed, AngiogramParameters(collimator_px=8))
+            for seed, (tree, carm) in enumerate(zip(trees, _views()))]
 
 
 @pytest.mark.parametrize("view", range(5))
@@ -47,7 +52,7 @@ def test_dice_on_synthetic_angiograms(rendered, view):
 
 
 def test_dice_without_collimator_and_with_frangi():
-    phantom = demo_phantom()
+    phantom = generate_tree("rca", "tortuous", 7).phantom
     _, carm = demo_views()[1]
     image = render_angiogram(phantom, carm, 11)
     assert dice(segment_vessels(image.image), image.mask) >= DICE_REQUIRED
