@@ -65,7 +65,7 @@ def test_reconstruction_through_dicom_equals_the_in_memory_one(xa_files, in_memo
     truth = phantom.surface_points_mm(0.5)
     through_dicom = scores_3d(result.vessel_points_mm, truth)
     assert through_dicom == scores_3d(expected.vessel_points_mm, truth)
-    # The phantom is recovered: four exact views carve it to a tight hull (measured Dice3D 88.1 %).
+    # The phantom is recovered: four exact views carve it to a tight hull (measured Dice3D 83.1 % on this RCA tree).
     assert through_dicom.dice3d > 80.0
 
 
