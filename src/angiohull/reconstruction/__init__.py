@@ -56,8 +56,9 @@ class ReconstructionResult:
     device: str  # "cpu" or "cuda"
     threshold_px: float  # distance threshold, px (strict)
     view_names: tuple[str, ...]  # names of the views, as given
-    survivors_per_view: tuple[int, ...]  # points alive after each view, in the order applied
+    survivors_per_view: tuple[int, ...]  # points alive after each view, in the order applied (min_views: kept points each view supports)
     view_order: tuple[int, ...]  # indices of the views in the order the engine applied them
+    min_views: int | None = None  # robust carving: views that must keep a point (None: all, the paper)
     timings_s: dict[str, float] = field(default_factory=dict)  # seconds per stage: cube, carve, centerlines, reconstruction
 
     @property
@@ -117,7 +118,8 @@ def _empty_hull_error(outcome: CarveOutcome, names: tuple[str, ...], lattice: La
 def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
                 resolution: int = DEFAULT_RESOLUTION, threshold_px: float = DEFAULT_THRESHOLD_PX,
                 engine: str = "auto", centerlines: bool = True, view_names: Sequence[str] | None = None,
-                half_edge_mm: float | None = None, allow_empty: bool = False, device: str = "cpu") -> ReconstructionResult:
+                half_edge_mm: float | None = None, allow_empty: bool = False, device: str = "cpu",
+                min_views: int | None = None) -> ReconstructionResult:
     """Carve the visual hull of the masks and, optionally, its centerline points.
 
     Parameters
@@ -146,6 +148,10 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         Where the ``lookup`` / ``octree`` engines run; ``"cuda"`` needs CuPy and a CUDA GPU
         (``pip install 'angiohull[gpu]'``) and keeps exactly the CPU's points. It pays from about
         K = 512 on (see docs/engines.md).
+    min_views : int, optional, keyword-only
+        Robust carving (beyond the paper): keep a point when at least this many views keep it, so
+        that a view with a false-negative segmentation or a missing segment does not carve the
+        vessel away. Default None: every view must keep it (the paper's rule).
 
     Returns
     -------
@@ -160,6 +166,11 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         raise ReconstructionError(f"unknown device {device!r}; choose 'cpu' or 'cuda'")
     if device == "cuda" and engine not in CUDA_ENGINES:
         raise ReconstructionError(f"engine {engine!r} runs on the CPU only; with device='cuda' use one of {list(CUDA_ENGINES)}")
+    if min_views is not None:
+        need = _v.positive_int(min_views, "min_views", error=ReconstructionError)
+        if need > len(checked_masks):
+            raise ReconstructionError(f"min_views must be between 1 and the number of views ({len(checked_masks)}), got {need}")
+        min_views = None if need == len(checked_masks) else need
     timings: dict[str, float] = {}
 
     start = time.perf_counter()
@@ -169,12 +180,18 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
 
     start = time.perf_counter()
     if device == "cuda":
-        outcome = carve_cuda(engine, lattice, list(projections), checked_masks, threshold_px=threshold)
+        outcome = carve_cuda(engine, lattice, list(projections), checked_masks, threshold_px=threshold,
+                             min_views=min_views)
     else:
-        outcome = ENGINES[engine](lattice, list(projections), checked_masks, threshold_px=threshold)
+        outcome = ENGINES[engine](lattice, list(projections), checked_masks, threshold_px=threshold,
+                                  min_views=min_views)
     timings["carve"] = time.perf_counter() - start
     timings["reconstruction"] = timings["cube"] + timings["carve"]
     if len(outcome.points_mm) == 0 and not allow_empty:
+        if min_views is not None:
+            raise EmptyHullError(f"the visual hull is empty: no lattice point is kept by {min_views} of the "
+                                 f"{len(names)} views; check the calibration and the masks",
+                                 view_index=-1, view_name="", points_before=lattice.n_points)
         raise _empty_hull_error(outcome, names, lattice)
 
     centerline_points = None
@@ -193,5 +210,6 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         view_names=names,
         survivors_per_view=outcome.survivors_per_view,
         view_order=outcome.order if outcome.order is not None else tuple(range(len(names))),
+        min_views=min_views,
         timings_s=timings,
     )

@@ -1,10 +1,11 @@
 """Carving engines: which lattice points survive every view.
 
-An engine is a function ``(lattice, projections, masks, *, threshold_px) -> CarveOutcome``. All
-engines implement the same rule (DESIGN.md, method step 3): a point is kept by a view when it lies
-in front of the source (``w > 0``) and the Euclidean distance from its projection to the nearest
-mask pixel centre is strictly below ``threshold_px``; views are applied in the given order, each to
-the survivors of the previous ones.
+An engine is a function ``(lattice, projections, masks, *, threshold_px, min_views=None) ->
+CarveOutcome``. All engines implement the same rule (DESIGN.md, method step 3): a point is kept by a
+view when it lies in front of the source (``w > 0``) and the Euclidean distance from its projection
+to the nearest mask pixel centre is strictly below ``threshold_px``; views are applied in the given
+order, each to the survivors of the previous ones. With ``min_views = k`` (robust carving, beyond
+the paper) a point survives when at least ``k`` views keep it; ``None`` means all of them.
 
 ``kdtree`` is the reference: the paper's own procedure, one :class:`scipy.spatial.cKDTree` per
 view built on the mask's pixel centres and queried by every surviving point.
@@ -86,17 +87,31 @@ def _kept_by_view(points: np.ndarray, projection: Projection, tree: cKDTree, thr
 
 
 def carve_kdtree(lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
-                 threshold_px: float) -> CarveOutcome:
-    """The reference engine: sequential filtering with one cKDTree per view (the paper's method)."""
+                 threshold_px: float, min_views: int | None = None) -> CarveOutcome:
+    """The reference engine: sequential filtering with one cKDTree per view (the paper's method).
+
+    With ``min_views = k < N`` a point is kept when at least ``k`` of the ``N`` views keep it
+    (each view's test as above); ``survivors_per_view`` then counts, per view, the kept points it
+    supports.
+    """
     trees = [cKDTree(mask_pixel_centres(m)) for m in masks]
-    survivors = [0] * len(projections)
+    n = len(projections)
+    need = n if min_views is None else int(min_views)
+    survivors = [0] * n
     kept_chunks = []
     for start in range(0, lattice.n_points, CHUNK_POINTS):
         points = lattice.points(start, start + CHUNK_POINTS)
-        for i, (projection, tree) in enumerate(zip(projections, trees)):
-            if len(points):
-                points = points[_kept_by_view(points, projection, tree, threshold_px)]
-            survivors[i] += len(points)
+        if need == n:
+            for i, (projection, tree) in enumerate(zip(projections, trees)):
+                if len(points):
+                    points = points[_kept_by_view(points, projection, tree, threshold_px)]
+                survivors[i] += len(points)
+        else:
+            support = np.stack([_kept_by_view(points, p, t, threshold_px) for p, t in zip(projections, trees)])
+            keep = support.sum(axis=0) >= need
+            points = points[keep]
+            for i in range(n):
+                survivors[i] += int(np.count_nonzero(support[i, keep]))
         kept_chunks.append(points)
     return CarveOutcome(np.concatenate(kept_chunks, axis=0), tuple(survivors))
 

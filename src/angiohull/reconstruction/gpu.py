@@ -57,13 +57,13 @@ def _cupy():
 
 
 def carve_cuda(engine: str, lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
-               threshold_px: float) -> CarveOutcome:
+               threshold_px: float, min_views: int | None = None) -> CarveOutcome:
     """The ``lookup`` or ``octree`` engine on a CUDA GPU: exactly the CPU engine's kept points.
 
     Parameters
     ----------
     engine : {"lookup", "octree"}
-    lattice, projections, masks, threshold_px
+    lattice, projections, masks, threshold_px, min_views
         As for the CPU engines (masks: (rows, cols) bool NumPy arrays, one per projection).
 
     Returns
@@ -83,4 +83,4 @@ def carve_cuda(engine: str, lattice: Lattice, projections: Sequence[Projection],
     root, leaf = cell_sizes(engine, lattice.resolution)
     return carve_hierarchical(lattice, projections, [np.asarray(m, dtype=bool) for m in masks],
                               threshold_px=float(threshold_px), root_size=root, leaf_size=leaf, xp=cupy,
-                              chunk_points=GPU_CHUNK_POINTS)
+                              chunk_points=GPU_CHUNK_POINTS, min_views=min_views)

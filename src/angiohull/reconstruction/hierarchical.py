@@ -102,11 +102,16 @@ def _children(xp, starts, size: int, k: int):
 
 def carve_hierarchical(lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
                        threshold_px: float, root_size: int, leaf_size: int, xp: Any = np,
-                       chunk_points: int = CHUNK_POINTS) -> CarveOutcome:
+                       chunk_points: int = CHUNK_POINTS, min_views: int | None = None) -> CarveOutcome:
     """Cull cells from ``root_size`` down to ``leaf_size`` (powers of two), then test points exactly.
 
-    Returns NumPy arrays whatever ``xp`` is.
+    With ``min_views = k`` below the number of views, a cell (and then a point) survives when at
+    least ``k`` views may keep it (keep it); see :func:`_carve_k_of_n`. Returns NumPy arrays
+    whatever ``xp`` is.
     """
+    if min_views is not None and int(min_views) < len(projections):
+        return _carve_k_of_n(lattice, projections, masks, threshold_px=threshold_px, root_size=root_size,
+                             leaf_size=leaf_size, xp=xp, chunk_points=chunk_points, need=int(min_views))
     k = lattice.resolution
     order = sparsest_first(masks)
     tests = [FootprintTest(projections[i], masks[i], threshold_px, xp) for i in order]
@@ -148,20 +153,71 @@ def carve_hierarchical(lattice: Lattice, projections: Sequence[Projection], mask
     return CarveOutcome(lattice.points_at(flat), tuple(survivors), order)
 
 
+def _carve_k_of_n(lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
+                  threshold_px: float, root_size: int, leaf_size: int, xp: Any, chunk_points: int,
+                  need: int) -> CarveOutcome:
+    """Robust carving: keep what at least ``need`` of the views keep.
+
+    A cell is culled when fewer than ``need`` views may keep one of its points (each view's test
+    is conservative, so no point that ``need`` views keep is lost); the points of the leaf cells
+    are then counted view by view with the exact test.
+    """
+    k = lattice.resolution
+    n = len(projections)
+    tests = [FootprintTest(p, m, threshold_px, xp) for p, m in zip(projections, masks)]
+    exact = [_ExactTest(p, m, threshold_px, xp) for p, m in zip(projections, masks)]
+    axis = xp.asarray(lattice.axis_mm())
+    r = xp.arange(0, k, root_size, dtype=np.int64)
+    starts = xp.stack(xp.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+    size = root_size
+    while len(starts):
+        lo, hi = axis[starts], axis[xp.minimum(starts + size, k) - 1]
+        votes = sum(test.may_keep(lo, hi).astype(np.int32) for test in tests)
+        starts = starts[votes >= need]
+        if size <= leaf_size or len(starts) == 0:
+            break
+        starts = _children(xp, starts, size, k)
+        size //= 2
+    survivors = [0] * n
+    if len(starts) == 0:
+        return CarveOutcome(np.empty((0, 3)), tuple(survivors))
+    r = xp.arange(size, dtype=np.int64)
+    offsets = xp.stack(xp.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+    kept = []
+    cells_per_chunk = max(1, chunk_points // size ** 3)
+    for c in range(0, len(starts), cells_per_chunk):
+        ijk = (starts[c:c + cells_per_chunk, None, :] + offsets[None]).reshape(-1, 3)
+        ijk = ijk[(ijk < k).all(axis=1)]
+        flat = (ijk[:, 0] * k + ijk[:, 1]) * k + ijk[:, 2]
+        x, y, z = axis[ijk[:, 0]], axis[ijk[:, 1]], axis[ijk[:, 2]]
+        support = xp.zeros((n, len(flat)), dtype=bool)
+        for i, test in enumerate(exact):
+            support[i, test.kept(x, y, z)] = True
+        keep = support.sum(axis=0) >= need
+        for i in range(n):
+            survivors[i] += int(xp.count_nonzero(support[i, keep]))
+        kept.append(flat[keep])
+    flat = xp.sort(xp.concatenate(kept))
+    flat = flat.get() if hasattr(flat, "get") else flat
+    return CarveOutcome(lattice.points_at(flat), tuple(survivors))
+
+
 def carve_lookup(lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
-                 threshold_px: float) -> CarveOutcome:
+                 threshold_px: float, min_views: int | None = None) -> CarveOutcome:
     """The ``lookup`` engine: a sweep over blocks of 16**3 points, culled, split once into 4**3
     blocks, culled again, then exact constant-time lookups per point."""
     root, leaf = cell_sizes("lookup", lattice.resolution)
-    return carve_hierarchical(lattice, projections, masks, threshold_px=threshold_px, root_size=root, leaf_size=leaf)
+    return carve_hierarchical(lattice, projections, masks, threshold_px=threshold_px, root_size=root, leaf_size=leaf,
+                              min_views=min_views)
 
 
 def carve_octree(lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
-                 threshold_px: float) -> CarveOutcome:
+                 threshold_px: float, min_views: int | None = None) -> CarveOutcome:
     """The ``octree`` engine: culling from cells of up to 128**3 points down to 4**3, then exact
     lookups; memory follows the surviving cells, so K up to 1024 fits in a few hundred MiB."""
     root, leaf = cell_sizes("octree", lattice.resolution)
-    return carve_hierarchical(lattice, projections, masks, threshold_px=threshold_px, root_size=root, leaf_size=leaf)
+    return carve_hierarchical(lattice, projections, masks, threshold_px=threshold_px, root_size=root, leaf_size=leaf,
+                              min_views=min_views)
 
 
 ENGINES["lookup"] = carve_lookup
