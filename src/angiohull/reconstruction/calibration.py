@@ -1,0 +1,337 @@
+"""Self-calibration: in-plane shifts of the views estimated from the masks alone.
+
+The header geometry of real C-arm runs disagrees by tens of pixels between views (table and
+isocentre offsets the header does not carry); a misplaced view carves the true vessel away. The
+shift of one view is observable from the others: the visual hull of the *other* views, projected
+into it, should land on its mask. :func:`calibrate_shifts` estimates a shift ``(du, dv)`` per view
+that maximises that agreement:
+
+1. **Support score.** For view ``v`` with the current corrections, carve the hull of the other
+   views (a coarse lattice; the threshold widened to the lattice spacing so that thin vessels are
+   not missed), project its points into ``v`` and count, for every candidate shift ``s`` at once,
+   how many land on the mask (dilated by the same threshold): a cross-correlation of the point
+   density with the mask, by FFT. ``f_v(s)`` is that count over the number of points: the fraction
+   of the other views' hull that view ``v`` supports when shifted by ``s``.
+2. **Greedy, fewest views first.** Each round computes the best shift of every view and applies
+   only the one with the largest gain ``f_v(s*) - f_v(current)``; rounds stop when no view gains
+   more than ``min_gain`` or when the mean support of all views would drop. With one view off and
+   the others right, the first round moves just that view (the hull of the right views is the
+   true vessel, so its gain is the largest), which is the correction the usual failure needs.
+   A move is undone, and the level ends, if it lowers the *coverage*: the mean fraction of each
+   mask that the hull of all views covers when projected back (1 when the views agree; a view out
+   of place carves vessel away in every view). When several views gain almost as much in the first
+   round (within 20 %), each is tried as the first move and the outcome with the highest final
+   coverage is kept.
+3. **Coarse to fine.** The same rounds on finer lattices with a smaller search window, then a
+   sub-pixel peak (a parabola through the support around its maximum, per axis).
+4. **Gauge.** Shifting every view by the projection of one common 3D translation changes nothing
+   but where the object sits (``J_v t`` with ``J_v`` the Jacobian of view ``v`` at the isocentre).
+   Of the equivalent corrections, the one that moves the fewest views by a pixel or more, then the
+   shortest in total, is reported (candidates: no translation, and the translations that leave
+   one view or a pair of views unmoved). Views that share an image axis (e.g. RAO 30 CRA 30 and
+   RAO 30 CAU 30 share their columns; the paper's perpendicular views share one axis pairwise)
+   leave a shift along that axis nearly undetermined: moving either view, with the object
+   translated, explains the masks equally well, and the calibration returns one of the two.
+
+A view's correction is applied as ``P' = T(du, dv) P`` (``T`` shifts pixel coordinates), so the
+returned shifts are what was done to the masks: a mask whose content moved by ``(+20, 0)`` px
+comes back as ``du = +20``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+from scipy import ndimage as ndi
+from scipy.signal import fftconvolve
+
+from ..errors import ReconstructionError
+from ..geometry import Projection, cube_half_edge_mm
+from .cube import Lattice
+from .engines import ENGINES
+
+__all__ = ["Calibration", "calibrate_shifts", "shift_projection", "CALIBRATION_LEVELS"]
+
+CALIBRATION_LEVELS: tuple[tuple[int, float], ...] = ((64, 1.0), (112, 0.25), (160, 0.1), (256, 0.05))
+"""(lattice resolution K, search window as a fraction of max_shift_px) of the coarse-to-fine levels."""
+
+
+_MOVED_PX = 1.0  # a view whose correction is shorter than this counts as unmoved (gauge choice)
+_MIN_COVERAGE_GAIN = 0.001  # a move must raise the mean mask coverage by more than this
+
+
+def shift_projection(projection: Projection, du_px: float, dv_px: float) -> Projection:
+    """The projection whose image is moved by ``(du, dv)`` pixels: ``T(du, dv) P``."""
+    shift = np.array([[1.0, 0.0, du_px], [0.0, 1.0, dv_px], [0.0, 0.0, 1.0]])
+    return Projection(shift @ projection.matrix, projection.image_shape)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Estimated per-view image shifts and how well the views agree before and after."""
+
+    shifts_px: tuple[tuple[float, float], ...]  # (du, dv) per view, in the order given, after the gauge
+    gauge_translation_mm: tuple[float, float, float]  # 3D translation the gauge step moved the object by
+    coverage_before: tuple[float, ...]  # per view: fraction of its mask the hull of all views covers, uncorrected
+    coverage_after: tuple[float, ...]  # the same with the corrections (finest level, the reconstruction's threshold)
+    rounds: int  # greedy rounds that changed a view, over all levels
+    history: list[tuple[int, int, float, float, float]] = field(default_factory=list, repr=False)
+    # (level K, view, du, dv, gain) of every applied update
+
+    def corrected(self, projections: Sequence[Projection]) -> list[Projection]:
+        """The projections with the shifts applied."""
+        return [shift_projection(p, du, dv) for p, (du, dv) in zip(projections, self.shifts_px)]
+
+    def to_dict(self, names: Sequence[str] | None = None) -> dict:
+        names = list(names) if names is not None else [f"view{i}" for i in range(len(self.shifts_px))]
+        return {
+            "method": "greedy leave-one-out support maximisation, coarse to fine; gauge: least total shift",
+            "shifts_px": {n: {"du": s[0], "dv": s[1]} for n, s in zip(names, self.shifts_px)},
+            "gauge_translation_mm": list(self.gauge_translation_mm),
+            "coverage_before": dict(zip(names, self.coverage_before)),
+            "coverage_after": dict(zip(names, self.coverage_after)),
+            "rounds": self.rounds,
+        }
+
+
+def _px_per_mm(projection: Projection) -> float:
+    """Pixels per mm at the isocentre (the larger of the two axes)."""
+    fu, fv = projection.focal_lengths_px
+    return max(fu, fv) / float(np.linalg.norm(projection.camera_centre_mm))
+
+
+def _jacobian(projection: Projection) -> np.ndarray:
+    """d(u, v)/dX at the isocentre, (2, 3)."""
+    m = projection.matrix
+    w = m[2, 3]
+    u, v = m[0, 3] / w, m[1, 3] / w
+    return np.stack([(m[0, :3] - u * m[2, :3]) / w, (m[1, :3] - v * m[2, :3]) / w])
+
+
+def _hull(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice, threshold_px: float) -> np.ndarray:
+    return ENGINES["octree"](lattice, list(projections), list(masks), threshold_px=threshold_px).points_mm
+
+
+def _support_map(points: np.ndarray, projection: Projection, mask_near: np.ndarray, window: int) -> np.ndarray:
+    """``f(s)`` for integer shifts ``|s| <= window``: fraction of points landing on ``mask_near``.
+
+    Returns an array ``(2 window + 1, 2 window + 1)`` indexed ``[dv + window, du + window]``.
+    """
+    rows, cols = mask_near.shape
+    h = projection.homogeneous(points)
+    front = h[:, 2] > 0
+    uv = h[front, :2] / h[front, 2:3]
+    iu = np.floor(uv[:, 0] + 0.5).astype(np.int64) + window
+    iv = np.floor(uv[:, 1] + 0.5).astype(np.int64) + window
+    ok = (iu >= 0) & (iu < cols + 2 * window) & (iv >= 0) & (iv < rows + 2 * window)
+    density = np.zeros((rows + 2 * window, cols + 2 * window))
+    np.add.at(density, (iv[ok], iu[ok]), 1.0)
+    # C(s) = sum_x D(x) M(x + s) over the padded canvas: the kernel is the mask flipped.
+    canvas = np.zeros_like(density)
+    canvas[window:window + rows, window:window + cols] = mask_near
+    full = fftconvolve(canvas, density[::-1, ::-1], mode="full")
+    centre_r, centre_c = density.shape[0] - 1, density.shape[1] - 1
+    block = full[centre_r - window:centre_r + window + 1, centre_c - window:centre_c + window + 1]
+    return np.clip(np.round(block), 0, None) / max(1, len(points))
+
+
+class _Level:
+    """One coarse-to-fine level: a lattice, a widened threshold and the masks dilated by it."""
+
+    def __init__(self, projections, masks, half_edge_mm, resolution, threshold_px):
+        self.projections = list(projections)
+        self.masks = list(masks)
+        self.lattice = Lattice(half_edge_mm, resolution)
+        spacing_px = self.lattice.spacing_mm * max(_px_per_mm(p) for p in projections)
+        self.threshold = max(threshold_px, 0.75 * spacing_px)
+        self.sharp_threshold = threshold_px  # the coverage is judged with the reconstruction's own threshold
+        self.cell_reach_px = threshold_px + 0.5 * np.sqrt(3.0) * spacing_px  # a lattice point's cell, projected
+        self.near = [ndi.distance_transform_edt(~m) < self.threshold for m in masks]
+
+    def agreement(self, shifts: np.ndarray) -> int:
+        """Lattice points that every view keeps with the reconstruction's own threshold."""
+        current = [shift_projection(p, *s) for p, s in zip(self.projections, shifts)]
+        return len(_hull(current, self.masks, self.lattice, self.sharp_threshold))
+
+    def coverage(self, shifts: np.ndarray) -> float:
+        """Mean over views of :meth:`coverage_per_view`."""
+        return float(np.mean(self.coverage_per_view(shifts)))
+
+    def coverage_per_view(self, shifts: np.ndarray) -> list[float]:
+        """Per view, the fraction of mask pixels that the hull of all views, projected back (each
+        lattice point standing for its cell), covers: 1 when the views agree."""
+        current = [shift_projection(p, *s) for p, s in zip(self.projections, shifts)]
+        points = _hull(current, self.masks, self.lattice, self.sharp_threshold)
+        if len(points) == 0:
+            return [0.0] * len(self.masks)
+        values = []
+        for projection, mask in zip(current, self.masks):
+            uv = projection.project(points)
+            rows, cols = mask.shape
+            iu = np.floor(uv[:, 0] + 0.5).astype(np.int64)
+            iv = np.floor(uv[:, 1] + 0.5).astype(np.int64)
+            ok = (iu >= 0) & (iu < cols) & (iv >= 0) & (iv < rows)
+            hit = np.zeros(mask.shape, dtype=bool)
+            hit[iv[ok], iu[ok]] = True
+            reach = ndi.distance_transform_edt(~hit) <= self.cell_reach_px
+            values.append(float(np.count_nonzero(reach & mask) / np.count_nonzero(mask)))
+        return values
+
+    def support_maps(self, shifts: np.ndarray, window: int) -> list[np.ndarray | None]:
+        """Per view, f(s) of the other views' hull over integer shifts within ``window`` (None: empty hull)."""
+        current = [shift_projection(p, *s) for p, s in zip(self.projections, shifts)]
+        maps: list[np.ndarray | None] = []
+        for v in range(len(current)):
+            others = [i for i in range(len(current)) if i != v]
+            points = _hull([current[i] for i in others], [self.masks[i] for i in others], self.lattice, self.threshold)
+            maps.append(_support_map(points, current[v], self.near[v], window) if len(points) else None)
+        return maps
+
+
+def _here(support: np.ndarray | None, window: int) -> float:
+    return float(support[window, window]) if support is not None else 0.0
+
+
+def _best(support: np.ndarray | None, window: int) -> tuple[float, int, int]:
+    """(gain over no move, du, dv) of the best integer shift in a support map."""
+    if support is None:
+        return (0.0, 0, 0)
+    r, c = np.unravel_index(int(np.argmax(support)), support.shape)
+    return (float(support[r, c] - support[window, window]), int(c) - window, int(r) - window)
+
+
+def _greedy(level: "_Level", window: int, shifts: np.ndarray, history: list, needed: float, rounds: int) -> None:
+    """Move one view per round (the largest gain) while the gain exceeds ``needed`` and the move
+    neither lowers the masks' coverage by the hull of all views nor the number of lattice points all
+    views keep (no drifting along directions the data do not fix)."""
+    maps = level.support_maps(shifts, window)
+    score = (level.coverage(shifts), level.agreement(shifts))
+    for _ in range(rounds):
+        gains = [_best(m, window) for m in maps]
+        v = int(np.argmax([g[0] for g in gains]))
+        gain, du, dv = gains[v]
+        if gain < needed:
+            return
+        shifts[v] += (du, dv)
+        new = (level.coverage(shifts), level.agreement(shifts))
+        if new[0] < score[0] - _MIN_COVERAGE_GAIN or new[1] <= score[1] and new[0] <= score[0] + _MIN_COVERAGE_GAIN:
+            shifts[v] -= (du, dv)
+            return
+        score = new
+        maps = level.support_maps(shifts, window)
+        history.append((level.lattice.resolution, v, float(du), float(dv), gain))
+
+
+def _subpixel(level: "_Level", shifts: np.ndarray) -> None:
+    """A parabola through each view's support around its integer optimum, per axis."""
+    for v, m in enumerate(level.support_maps(shifts, 1)):
+        if m is not None and int(np.argmax(m)) == 4:
+            shifts[v] += (_parabolic(m[1, :], 1), _parabolic(m[:, 1], 1))
+
+
+def _parabolic(values: np.ndarray, index: int) -> float:
+    """Sub-sample offset of the peak of a parabola through values[index - 1 .. index + 1]."""
+    if index <= 0 or index >= len(values) - 1:
+        return 0.0
+    left, centre, right = values[index - 1], values[index], values[index + 1]
+    denominator = left - 2.0 * centre + right
+    return float(np.clip(0.5 * (left - right) / denominator, -0.5, 0.5)) if denominator < 0 else 0.0
+
+
+def _gauge(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Of the corrections equivalent up to a common 3D translation, the one that moves the fewest
+    views (corrections of at least _MOVED_PX), then the shortest in total.
+
+    Candidates: no translation, and for every view and every pair of views the translation that
+    (in the least-squares sense) leaves them unmoved.
+    """
+    n = len(jacobians)
+    candidates = [np.zeros(3)]
+    for v in range(n):
+        candidates.append(np.linalg.pinv(jacobians[v]) @ shifts[v])
+        for w in range(v + 1, n):
+            a = np.vstack([jacobians[v], jacobians[w]])
+            candidates.append(np.linalg.lstsq(a, np.concatenate([shifts[v], shifts[w]]), rcond=None)[0])
+    best = None
+    for t in candidates:
+        corrected = shifts - np.stack([j @ t for j in jacobians])
+        lengths = np.linalg.norm(corrected, axis=1)
+        key = (int(np.count_nonzero(lengths >= _MOVED_PX)), round(float(lengths.sum()), 6), float(np.linalg.norm(t)))
+        if best is None or key < best[0]:
+            best = (key, corrected, t)
+    return best[1], best[2]
+
+
+def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
+                     max_shift_px: float = 60.0, threshold_px: float = 1.0, min_gain: float = 0.01,
+                     max_rounds: int | None = None) -> Calibration:
+    """Estimate an in-plane image shift per view that makes the views agree (see the module notes).
+
+    Parameters
+    ----------
+    projections : sequence of Projection
+        The header geometry, at least 2 views.
+    masks : sequence of (rows, cols) bool arrays
+    max_shift_px : float, keyword-only
+        Largest shift searched per view, pixels (default 60).
+    threshold_px : float, keyword-only
+        The carving threshold the final reconstruction will use (the levels widen it to their
+        lattice spacing).
+    min_gain : float, keyword-only
+        On the coarsest level a view is moved only if it then supports at least this much more of
+        the other views' hull (a fraction; default 0.01); finer levels accept a tenth of it.
+    max_rounds : int, optional
+        Greedy rounds per level (default: 2 x the number of views).
+
+    Returns
+    -------
+    Calibration
+    """
+    n = len(projections)
+    if n < 2:
+        raise ReconstructionError(f"calibration needs at least 2 views, got {n}")
+    if len(masks) != n:
+        raise ReconstructionError(f"got {n} projections but {len(masks)} masks")
+    masks = [np.asarray(m, dtype=bool) for m in masks]
+    if not all(m.any() for m in masks):
+        raise ReconstructionError("calibration needs a vessel pixel in every mask")
+    if not np.isfinite(max_shift_px) or max_shift_px < 1:
+        raise ReconstructionError(f"max_shift_px must be >= 1, got {max_shift_px!r}")
+    rounds = max_rounds if max_rounds is not None else 2 * n
+    half_edge = cube_half_edge_mm(projections)  # the lattice stays where the headers put it
+    levels = [(_Level(projections, masks, half_edge, k, threshold_px), max(2, int(np.ceil(max_shift_px * f))))
+              for k, f in CALIBRATION_LEVELS]
+    coarse, window = levels[0]
+    maps = coarse.support_maps(np.zeros((n, 2)), window)
+    # The first move decides which views carry the correction; near-ties (e.g. two views that share
+    # an image axis) are all followed to the end and the most consistent outcome is kept.
+    gains = [_best(m, window) for m in maps]
+    top = max(g[0] for g in gains)
+    starts = [v for v, g in enumerate(gains) if top >= min_gain and g[0] >= 0.8 * top] or [None]
+    outcomes = []
+    for first in starts:
+        shifts = np.zeros((n, 2))
+        history: list[tuple[int, int, float, float, float]] = []
+        if first is not None:
+            shifts[first] += gains[first][1:]
+            history.append((levels[0][0].lattice.resolution, first, *map(float, gains[first][1:]), gains[first][0]))
+        for index, (level, window) in enumerate(levels):
+            needed = min_gain if index == 0 else 0.1 * min_gain
+            _greedy(level, window, shifts, history, needed, rounds)
+        last = levels[-1][0]
+        _subpixel(last, shifts)
+        outcomes.append((last.coverage(shifts), shifts, history))
+    score, shifts, history = max(outcomes, key=lambda o: o[0])
+    level = levels[-1][0]
+    jacobians = [_jacobian(p) for p in projections]
+    final, translation = _gauge(shifts, jacobians)
+    return Calibration(
+        shifts_px=tuple((float(a), float(b)) for a, b in final),
+        gauge_translation_mm=tuple(float(x) for x in translation),
+        coverage_before=tuple(level.coverage_per_view(np.zeros((n, 2)))),
+        coverage_after=tuple(level.coverage_per_view(final)),
+        rounds=len(history),
+        history=history,
+    )
