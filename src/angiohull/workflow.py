@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import math
 import platform
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -21,9 +21,10 @@ from .io import write_points_ply
 from .metrics import PAPER_DETECTOR_SPACING_MM, dice2d, dice2d_paper, paper_dilation_side_px, scores_3d
 from .rasterise import cell_silhouette
 from .reconstruction import DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ReconstructionResult, reconstruct
-from .study import Study
+from .reconstruction.calibration import Calibration, calibrate_shifts, shift_projection
+from .study import Study, View
 
-__all__ = ["ReconstructOptions", "reconstruct_study", "view_silhouettes", "evaluation_scores", "build_report", "write_outputs", "json_safe"]
+__all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_silhouettes", "evaluation_scores", "build_report", "write_outputs", "json_safe"]
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,8 @@ class ReconstructOptions:
     engine: str = "auto"  # carving engine (auto: the fastest exact one)
     centerlines: bool = True  # extract centerline points
     device: str = "cpu"  # where the lookup/octree engines run: cpu or cuda
+    min_views: int | None = None  # robust carving: views that must keep a point (None: all, the paper)
+    calibrate: bool = False  # estimate per-view image shifts first (calibrate_study)
 
 
 def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOptions()) -> ReconstructionResult:
@@ -42,8 +45,30 @@ def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOpt
     return reconstruct(
         study.projections, study.masks,
         resolution=options.resolution, threshold_px=options.threshold_px, engine=options.engine,
-        centerlines=options.centerlines, view_names=study.names, device=options.device,
+        centerlines=options.centerlines, view_names=study.names, device=options.device, min_views=options.min_views,
     )
+
+
+def _shifted_view(view: View, du_px: float, dv_px: float) -> View:
+    """The view with its image shifted by (du, dv): a C-arm view keeps its pose, with the principal
+    point moved (exactly ``T(du, dv) P``); a bare matrix is multiplied by the shift."""
+    if du_px == 0 and dv_px == 0:
+        return view
+    if view.carm is not None:
+        du0, dv0 = view.carm.principal_offset_px
+        carm = replace(view.carm, principal_offset_px=(du0 + du_px, dv0 + dv_px))
+        return replace(view, carm=carm, projection=carm.projection())
+    return replace(view, projection=shift_projection(view.projection, du_px, dv_px))
+
+
+def calibrate_study(study: Study, options: ReconstructOptions = ReconstructOptions(), *,
+                    max_shift_px: float = 60.0) -> tuple[Study, Calibration]:
+    """Estimate per-view image shifts (:func:`~angiohull.reconstruction.calibration.calibrate_shifts`)
+    and return the study with them applied, and the calibration."""
+    calibration = calibrate_shifts(study.projections, study.masks, threshold_px=options.threshold_px,
+                                   max_shift_px=max_shift_px)
+    views = tuple(_shifted_view(v, du, dv) for v, (du, dv) in zip(study.views, calibration.shifts_px))
+    return replace(study, views=views), calibration
 
 
 def view_silhouettes(study: Study, result: ReconstructionResult) -> list[np.ndarray]:
@@ -126,7 +151,8 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
         "python": platform.python_version(),
         "study": str(study.root) if study.root is not None else None,
         "options": {"resolution": options.resolution, "threshold_px": options.threshold_px,
-                    "engine": options.engine, "centerlines": options.centerlines, "device": options.device},
+                    "engine": options.engine, "centerlines": options.centerlines, "device": options.device,
+                    "min_views": options.min_views, "calibrate": options.calibrate},
         "engine": result.engine,
         "cube_of_interest": {"half_edge_mm": result.lattice.half_edge_mm, "resolution": result.lattice.resolution,
                              "lattice_spacing_mm": result.lattice_spacing_mm, "n_lattice_points": result.lattice.n_points},
