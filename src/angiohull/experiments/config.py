@@ -413,10 +413,10 @@ class ExperimentConfig(_Model):
 # -- loading and errors ---------------------------------------------------------------------------
 def _format_loc(loc) -> str:
     text = ""
-    for part in loc:
+    for index, part in enumerate(loc):
         if isinstance(part, int):
             text += f"[{part}]"
-        elif part in ("trees", "n_views", "angles") and text == "design":
+        elif index == 1 and loc[0] == "design" and part in ("trees", "n_views", "angles"):
             continue  # the discriminated union's tag is not a key of the file
         elif str(part).startswith(("function-", "tagged-union", "literal[")) or part in ("tuple[float, float]", "float"):
             continue
@@ -437,18 +437,21 @@ def _got(value: Any) -> str:
 
 
 def _model_at(loc) -> Optional[type[BaseModel]]:
+    """The model that holds the keys at ``loc`` (list indices skipped; ``design``'s tag picks the design)."""
+    designs = {"trees": TreesDesign, "n_views": NViewsDesign, "angles": AnglesDesign}
     model: Optional[type[BaseModel]] = ExperimentConfig
-    for part in loc:
-        if model is None or not isinstance(part, str):
-            continue
-        if part in ("trees", "n_views", "angles") and model is ExperimentConfig.model_fields["design"].annotation:
-            continue
-        field = model.model_fields.get(part)
-        if field is None:
-            designs = {"trees": TreesDesign, "n_views": NViewsDesign, "angles": AnglesDesign}
-            model = designs.get(part)
-            continue
-        model = _find_model(field.annotation)
+    parts = list(loc)
+    i = 0
+    while i < len(parts):
+        part = parts[i]
+        if isinstance(part, str) and model is not None:
+            if model is ExperimentConfig and part == "design":
+                model = designs.get(parts[i + 1]) if i + 1 < len(parts) else None
+                i += 2
+                continue
+            field = model.model_fields.get(part)
+            model = None if field is None else _find_model(field.annotation)
+        i += 1
     return model
 
 

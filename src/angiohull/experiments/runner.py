@@ -50,6 +50,9 @@ __all__ = ["RunSummary", "run_experiment", "prepare_run_dir", "default_workers",
 
 CONFIG_FILE, CASES_FILE, ROWS_FILE, RESULTS_FILE, RUN_FILE = "config.yaml", "cases.jsonl", "rows.csv", "results.csv", "run.json"
 
+DASK_CONNECT_TIMEOUT_S = 20.0
+"""How long to wait for a Dask scheduler to answer before giving up."""
+
 
 def default_workers() -> int:
     """The CPUs this process may use."""
@@ -253,23 +256,29 @@ def _run_processes(cases: Sequence[dict[str, Any]], workers: int) -> Iterator[di
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _run_dask(cases: Sequence[dict[str, Any]], address: str) -> Iterator[dict[str, Any]]:
+def _connect_dask(address: str):
+    """A client of the Dask scheduler at ``address`` (errors here, before any work starts)."""
     try:
-        from distributed import Client, as_completed
+        from distributed import Client
     except ImportError:
         raise AngiohullError("--scheduler needs dask.distributed: pip install 'angiohull[cluster]'") from None
     try:
-        client = Client(address, timeout="20s", set_as_default=False)
+        return Client(address, timeout=f"{DASK_CONNECT_TIMEOUT_S}s", set_as_default=False)
     except (OSError, TimeoutError, ValueError) as exc:
         raise AngiohullError(f"cannot reach the Dask scheduler at {address} ({exc}); start one with "
                              f"`dask scheduler` and workers with `dask worker {address}`") from None
+
+
+def _run_dask(cases: Sequence[dict[str, Any]], client) -> Iterator[dict[str, Any]]:
+    from distributed import as_completed
+
     futures = []
     try:
         threads = max(1, sum(client.nthreads().values()))
         pending = iter(cases)
         first = [client.submit(run_case, p, pure=False) for _, p in zip(range(2 * threads), pending)]
         futures = list(first)
-        queue = as_completed(first)
+        queue = as_completed(first, loop=client.loop)
         for future in queue:
             row = future.result()
             futures.remove(future)
@@ -316,7 +325,13 @@ def run_experiment(config: ExperimentConfig, run_dir: str | Path, *, workers: Op
         raise AngiohullError(f"workers must be a whole number >= 1, got {workers!r}")
     cases = expand_cases(config)
     columns = row_columns(config)
-    run_dir = prepare_run_dir(config, run_dir)
+    client = _connect_dask(scheduler) if scheduler is not None else None
+    try:
+        run_dir = prepare_run_dir(config, run_dir)
+    except BaseException:
+        if client is not None:
+            client.close()
+        raise
     write_atomic(run_dir / CASES_FILE, "".join(json.dumps(c, sort_keys=True) + "\n" for c in cases))
     journal = RowsJournal(run_dir / ROWS_FILE, columns)
     known = {int(r["case_id"]): r for r in journal.open()}
@@ -324,13 +339,15 @@ def run_experiment(config: ExperimentConfig, run_dir: str | Path, *, workers: Op
     unknown = [k for k in known if not 0 <= k < total]
     if unknown:
         journal.close()
+        if client is not None:
+            client.close()
         raise AngiohullError(f"{run_dir / ROWS_FILE}: case_id {unknown[0]} is not a case of this experiment; "
                              f"choose a new RUN_DIR")
     pending = [c for c in cases if c["case_id"] not in known]
     if max_cases is not None:
         pending = pending[:max(0, int(max_cases))]
-    if scheduler is not None:
-        executor, rows_iter = f"Dask scheduler {scheduler}", _run_dask(pending, scheduler)
+    if client is not None:
+        executor, rows_iter = f"Dask scheduler {scheduler}", _run_dask(pending, client)
     else:
         workers = default_workers() if workers is None else workers
         if workers == 1 or len(pending) <= 1:
@@ -356,6 +373,8 @@ def run_experiment(config: ExperimentConfig, run_dir: str | Path, *, workers: Op
         raise
     finally:
         rows_iter.close()
+        if client is not None:
+            client.close()  # also when the generator never started (nothing pending)
         journal.close()
         summary.wall_s = time.perf_counter() - start
         summary.status_counts = _status_counts(known)
