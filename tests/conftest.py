@@ -30,3 +30,13 @@ def ge_phantom_dir() -> Path:
         pytest.skip(f"real XA phantom files not found at {folder} (clone the project beside ../shared, "
                     f"or set ANGIOHULL_SHARED)")
     return folder
+
+
+@pytest.fixture(scope="session")
+def quick_runs(tmp_path_factory) -> Path:
+    """Every shipped experiment run with --quick through the command line, in this process (~20 s)."""
+    from angiohull.cli import main
+
+    root = tmp_path_factory.mktemp("quick-runs")
+    assert main(["experiment", "all", "--quick", "-o", str(root), "--workers", "1", "--quiet"]) == 0
+    return root

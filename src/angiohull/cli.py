@@ -104,6 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None, help="seed of every random draw (default: fresh, recorded)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     _add_dicom_commands(sub)
+    _add_experiment_parsers(sub)
     return parser
 
 
@@ -374,6 +375,77 @@ class _WarningPrinter:
         elif str(message) not in self.seen:
             self.seen.add(str(message))
             print(f"angiohull: warning: {message}", file=sys.stderr)
+
+
+# -- experiments and reports (self-contained block) -------------------------------------------------
+def _add_experiment_parsers(sub) -> None:
+    from .experiments.config import shipped_config_names
+
+    names = ", ".join(shipped_config_names())
+    p = sub.add_parser("experiment", help="run one of the paper's experiments (or your own config), resumably",
+                       description="Run every case of an experiment configuration and write one row per case to "
+                                   "RUN_DIR/rows.csv as it finishes; running the same command again resumes. "
+                                   f"CONFIG is a YAML file, a shipped name ({names}) or 'all' (every shipped "
+                                   "experiment, each into RUN_DIR/NAME/).")
+    p.add_argument("config", metavar="CONFIG", help="YAML file, shipped experiment name, or 'all'")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="RUN_DIR", help="run directory (resumed if it exists)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="local worker processes (default: the usable CPUs; 1 runs in this process)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run on an existing Dask cluster, e.g. tcp://host:8786 (needs pip install 'angiohull[cluster]')")
+    p.add_argument("--quick", action="store_true",
+                   help="scale every count down (config's quick.fraction, small floors) keeping each table and plot")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress, only the final summary")
+
+    p = sub.add_parser("report", help="tables, t-tests and figures of experiment runs, beside the paper's numbers",
+                       description="Write report.md, report.json and figures/*.png for one or more run directories "
+                                   "(or folders of run directories); every number is recomputed from the rows.")
+    p.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR", help="run directory, or a folder of them")
+    p.add_argument("-o", "--output", type=Path, default=Path("angiohull-report"), metavar="OUT_DIR",
+                   help="output folder (default ./angiohull-report)")
+
+
+def _cmd_experiment(args) -> int:
+    from .experiments.config import load_config, shipped_config_names
+    from .experiments.runner import run_experiment
+
+    if args.workers is not None and args.workers < 1:
+        raise AngiohullError(f"--workers must be >= 1, got {args.workers}")
+    if args.config == "all":
+        jobs = [(load_config(name, quick=args.quick), args.output / name) for name in shipped_config_names()]
+    else:
+        jobs = [(load_config(args.config, quick=args.quick), args.output)]
+    stream = None if args.quiet else sys.stderr
+    summaries = []
+    try:
+        for config, run_dir in jobs:
+            summaries.append(run_experiment(config, run_dir, workers=args.workers, scheduler=args.scheduler,
+                                            stream=stream))
+    except KeyboardInterrupt:
+        print(f"angiohull experiment: interrupted; finished rows are kept in {run_dir / 'rows.csv'}; run the same "
+              f"command again to resume", file=sys.stderr)
+        return 130
+    if args.quiet:  # otherwise run_experiment has printed each summary on stderr already
+        for summary in summaries:
+            print(summary.text())
+    if len(summaries) > 1:
+        for s in summaries:
+            print(f"{s.name:<18} {s.done:>6}/{s.total:<6} cases  {s.failures:>4} failed  wall time {s.wall_s:8.1f} s")
+        total = sum(s.wall_s for s in summaries)
+        print(f"{len(summaries)} experiments, {sum(s.done_now for s in summaries)} cases run now, "
+              f"{sum(s.failures for s in summaries)} failed, wall time {total / 60:.1f} min")
+    return 0
+
+
+def _cmd_report(args) -> int:
+    from .experiments.report import build_report
+
+    path = build_report(args.runs, args.output)
+    print(f"wrote {path} (and report.json, figures/ beside it)")
+    return 0
+
+
+_COMMANDS.update({"experiment": _cmd_experiment, "report": _cmd_report})
 
 
 def main(argv: Sequence[str] | None = None) -> int:

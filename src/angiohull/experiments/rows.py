@@ -1,0 +1,166 @@
+"""The rows of a run on disk: an append-only CSV journal, and atomic writes of everything else.
+
+``rows.csv`` is a journal: each finished case is appended as one line, flushed and fsync'ed before
+the next, and never rewritten. A run killed at any instant leaves every finished row intact; at most
+the line being written is cut short, and :meth:`RowsJournal.open` drops such a partial last line
+before appending again. Every other file of a run directory (``results.csv``, ``run.json``, ...) is
+written to a temporary file in the same folder and renamed over the old one (atomic on POSIX), so a
+reader sees the old version or the new one, never a mix.
+
+Values are written so that reading them back gives the same numbers: floats as ``repr`` (17
+significant digits, ``nan`` for undefined scores), integers as decimal text.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from ..errors import AngiohullError
+
+__all__ = ["RowsJournal", "read_rows", "format_value", "parse_value", "rows_to_csv", "write_atomic",
+           "INT_COLUMNS", "TEXT_COLUMNS"]
+
+INT_COLUMNS = frozenset({"case_id", "tree_index", "tree_seed", "n_views", "n_points", "count"})
+TEXT_COLUMNS = frozenset({"tortuosity", "views", "view_ids", "corruption", "status", "reason"})
+
+
+def format_value(value: Any) -> str:
+    """Text of one cell: exact floats (``repr``), plain integers, text as is."""
+    if value is None:
+        return ""
+    if isinstance(value, (bool, np.bool_)):
+        return "true" if value else "false"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        number = float(value)
+        return "nan" if math.isnan(number) else repr(number)
+    return str(value)
+
+
+def parse_value(column: str, text: str) -> Any:
+    """The value of one cell of ``column`` (inverse of :func:`format_value`)."""
+    if column in TEXT_COLUMNS:
+        return text
+    if column in INT_COLUMNS:
+        return int(text)
+    return float(text) if text != "" else math.nan
+
+
+def rows_to_csv(columns: Sequence[str], rows: Iterable[dict[str, Any]]) -> str:
+    """CSV text of ``rows`` (header first; every row must have exactly ``columns``)."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(columns)
+    for row in rows:
+        writer.writerow([format_value(row[c]) for c in columns])
+    return buffer.getvalue()
+
+
+def write_atomic(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(temp, path)
+    except BaseException:
+        try:
+            os.unlink(temp)
+        except OSError:
+            pass
+        raise
+    return path
+
+
+def read_rows(path: str | Path, columns: Sequence[str] | None = None) -> tuple[list[str], list[dict[str, Any]]]:
+    """The header and the complete rows of a rows file (a partial last line is ignored).
+
+    Rows with a repeated ``case_id`` keep the first occurrence. With ``columns``, the header must
+    equal it (else :class:`~angiohull.errors.AngiohullError`).
+    """
+    path = Path(path)
+    text = path.read_text(encoding="utf-8")
+    if text and not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+    records = list(csv.reader(io.StringIO(text)))
+    if not records:
+        return (list(columns) if columns is not None else []), []
+    header = records[0]
+    if columns is not None and header != list(columns):
+        raise AngiohullError(
+            f"{path}: its columns ({', '.join(header)}) differ from this experiment's ({', '.join(columns)}); it was "
+            f"written by another configuration or version; use a new run directory")
+    rows, seen = [], set()
+    for number, record in enumerate(records[1:], start=2):
+        if len(record) != len(header):
+            raise AngiohullError(f"{path}: line {number} has {len(record)} fields, expected {len(header)}")
+        row = {c: parse_value(c, v) for c, v in zip(header, record)}
+        if row["case_id"] not in seen:
+            seen.add(row["case_id"])
+            rows.append(row)
+    return header, rows
+
+
+class RowsJournal:
+    """Append-only ``rows.csv``: one fsync'ed line per finished case."""
+
+    def __init__(self, path: str | Path, columns: Sequence[str]):
+        self.path = Path(path)
+        self.columns = list(columns)
+        self._handle = None
+        self._writer = None
+
+    def open(self) -> list[dict[str, Any]]:
+        """Open for appending; returns the rows already there (after dropping a partial last line)."""
+        rows: list[dict[str, Any]] = []
+        if self.path.exists() and self.path.stat().st_size > 0:
+            data = self.path.read_bytes()
+            if not data.endswith(b"\n"):
+                keep = data.rfind(b"\n") + 1
+                with open(self.path, "r+b") as handle:  # drop the cut-short line of an interrupted write
+                    handle.truncate(keep)
+                    handle.flush()
+                    os.fsync(handle.fileno())
+            _, rows = read_rows(self.path, self.columns)
+        self._handle = open(self.path, "a", encoding="utf-8", newline="")
+        self._writer = csv.writer(self._handle, lineterminator="\n")
+        if self._handle.tell() == 0:
+            self._write(self.columns)
+        return rows
+
+    def _write(self, cells: Sequence[str]) -> None:
+        self._writer.writerow(cells)
+        self._handle.flush()
+        os.fsync(self._handle.fileno())
+
+    def append(self, row: dict[str, Any]) -> None:
+        """Write one row (exactly the journal's columns) and make it durable."""
+        missing = [c for c in self.columns if c not in row]
+        extra = [c for c in row if c not in self.columns]
+        if missing or extra:
+            raise AngiohullError(f"row of case {row.get('case_id')}: missing columns {missing}, unexpected {extra}")
+        self._write([format_value(row[c]) for c in self.columns])
+
+    def close(self) -> None:
+        if self._handle is not None:
+            self._handle.close()
+            self._handle = None
+
+    def __enter__(self) -> "RowsJournal":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
