@@ -101,3 +101,23 @@ def test_real_phantom_views_agree_after_calibration(ge_phantom_dir):
               for p, m in zip(corrected, masks)]
     # Header geometry: 73 / 69 / 67 % at K = 100 (docs/dicom.md); calibrated, K = 256: 88 / 88 / 86 %.
     assert min(scores) >= 80.0
+
+
+def test_evaluate_with_calibrate_reports_the_shifts(tmp_path, capsys):
+    import json
+
+    from angiohull.cli import main
+
+    study = tmp_path / "s"
+    assert main(["synth", str(study), "--seed", "2", "--corrupt", "translate=20,0", "-q"]) == 0
+    assert main(["evaluate", str(study), "--json"]) == 0
+    plain = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(study), "-o", str(out), "--calibrate", "--min-views", "3", "--no-figure", "-q"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    shifts = report["calibration"]["shifts_px"]
+    assert abs(shifts["RAO30_CRA30"]["du"] - 20.0) < 2.0 and abs(shifts["LAO60_CRA30"]["du"]) < 1.0
+    assert report["options"]["calibrate"] is True and report["options"]["min_views"] == 3
+    assert main(["evaluate", str(study), "--json", "--calibrate"]) == 0
+    calibrated = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert calibrated["dice3d"] > plain["dice3d"] + 20

@@ -45,6 +45,14 @@ def _add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
                              "pip install 'angiohull[gpu]'); same points either way")
 
 
+def _add_beyond_paper_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--calibrate", action="store_true",
+                        help="first estimate a per-view image shift that makes the views agree (header "
+                             "geometry off by pixels to tens of pixels); the shifts go to report.json")
+    parser.add_argument("--min-views", type=int, default=None, metavar="K",
+                        help="robust carving: keep a point when at least K views keep it (default: all, the paper)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``angiohull`` command."""
     parser = argparse.ArgumentParser(
@@ -61,6 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("study", type=Path, metavar="STUDY_DIR", help="study folder (or its study.yaml)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="OUT_DIR", help="folder for the outputs")
     _add_reconstruction_options(p)
+    _add_beyond_paper_options(p)
     p.add_argument("--no-centerlines", action="store_true", help="skip the centerline extraction")
     p.add_argument("--no-figure", action="store_true", help="do not draw figure.png")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
@@ -70,6 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "Dice2D (paper protocol and plain), time of the reconstruction alone.")
     p.add_argument("study", type=Path, metavar="STUDY_DIR", help="study folder with a ground_truth")
     _add_reconstruction_options(p)
+    _add_beyond_paper_options(p)
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
 
     p = sub.add_parser("demo", help="run the whole pipeline on a built-in synthetic RCA tree",
@@ -119,6 +129,12 @@ def _format_scores(scores: dict) -> str:
 def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, figure: bool, score: bool):
     from . import workflow
 
+    calibration = None
+    if options.calibrate:
+        progress(f"calibrating {len(study.views)} views (per-view image shifts)")
+        study, calibration = workflow.calibrate_study(study, options)
+        shifts = ", ".join(f"{n} ({du:+.1f}, {dv:+.1f})" for n, (du, dv) in zip(study.names, calibration.shifts_px))
+        progress(f"shifts (du, dv) px: {shifts}")
     progress(f"reconstructing {len(study.views)} views at K={options.resolution} with engine {options.engine}")
     result = workflow.reconstruct_study(study, options)
     progress(f"kept {len(result.vessel_points_mm)} of {result.lattice.n_points} lattice points "
@@ -126,6 +142,8 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
     silhouettes = workflow.view_silhouettes(study, result)
     scores = workflow.json_safe(workflow.evaluation_scores(study, result, silhouettes)) if score else None
     report = workflow.build_report(study, result, options, silhouettes, scores)
+    if calibration is not None:
+        report["calibration"] = workflow.json_safe(calibration.to_dict(study.names))
     if out_dir is not None:
         paths = workflow.write_outputs(out_dir, study, result, report)
         if figure:
@@ -149,7 +167,8 @@ def _cmd_reconstruct(args) -> int:
 
     progress = _Progress(not args.quiet)
     study = load_study(args.study)
-    options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines, args.device)
+    options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines, args.device,
+                                 min_views=args.min_views, calibrate=args.calibrate)
     _, report, _ = _run_study(study, options, args.output, progress, figure=not args.no_figure, score=False)
     if not args.quiet:
         per_view = ", ".join(f"{v['name']} {v['dice2d_reprojection']:.1f} %" for v in report["views"])
@@ -166,7 +185,8 @@ def _cmd_evaluate(args) -> int:
     study = load_study(args.study)
     if study.ground_truth_mm is None:
         raise AngiohullError(f"{args.study}: the study has no ground truth; add 'ground_truth: gt.npy' to its study.yaml")
-    options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=False, device=args.device)
+    options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=False, device=args.device,
+                                 min_views=args.min_views, calibrate=args.calibrate)
     _, _, scores = _run_study(study, options, None, progress, figure=False, score=True)
     if args.json:
         print(json.dumps(scores))
