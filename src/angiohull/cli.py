@@ -12,7 +12,8 @@ from typing import Sequence, TextIO
 
 from . import __version__
 from .errors import AngiohullError, DicomGeometryWarning
-from .reconstruction import AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES
+from .reconstruction import AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES, PRESETS
+from .reconstruction.refine import REFINED
 from .synthetic.render import RASTERISERS
 from .synthetic.tree import TORTUOSITY_LEVELS, TREE_KINDS
 
@@ -33,8 +34,9 @@ class _Progress:
 
 
 def _add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--resolution", "-k", type=int, default=DEFAULT_RESOLUTION, metavar="K",
-                        help=f"lattice points per axis of the cube of interest (default {DEFAULT_RESOLUTION})")
+    parser.add_argument("--resolution", "-k", type=int, default=None, metavar="K",
+                        help=f"lattice points per axis of the cube of interest (default {DEFAULT_RESOLUTION}, "
+                             f"{REFINED.resolution} with --preset refined)")
     parser.add_argument("--threshold", type=float, default=DEFAULT_THRESHOLD_PX, metavar="PX",
                         help=f"keep a point when its projection is closer than PX to a mask pixel centre (default {DEFAULT_THRESHOLD_PX})")
     parser.add_argument("--engine", choices=ENGINE_CHOICES, default="auto",
@@ -46,6 +48,10 @@ def _add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_beyond_paper_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--preset", choices=PRESETS, default="paper",
+                        help="paper (default): the method as published; refined: specks removed from the masks, a finer "
+                             "lattice, small disconnected parts dropped and the hull trimmed to the vessel radii "
+                             "the views show (docs/beyond-the-paper.md)")
     parser.add_argument("--calibrate", action="store_true",
                         help="first estimate a per-view image shift that makes the views agree (header "
                              "geometry off by pixels to tens of pixels); the shifts go to report.json")
@@ -135,7 +141,7 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
         study, calibration = workflow.calibrate_study(study, options)
         shifts = ", ".join(f"{n} ({du:+.1f}, {dv:+.1f})" for n, (du, dv) in zip(study.names, calibration.shifts_px))
         progress(f"shifts (du, dv) px: {shifts}")
-    progress(f"reconstructing {len(study.views)} views at K={options.resolution} with engine {options.engine}")
+    progress(f"reconstructing {len(study.views)} views ({options.preset} preset) with engine {options.engine}")
     result = workflow.reconstruct_study(study, options)
     progress(f"kept {len(result.vessel_points_mm)} of {result.lattice.n_points} lattice points "
              f"(carving {result.timings_s['carve']:.3f} s)")
@@ -154,7 +160,8 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
                 Path(out_dir) / "figure.png", vessel_points_mm=result.vessel_points_mm, masks=study.masks,
                 reprojections=silhouettes, view_names=study.names, centerline_points_mm=result.centerline_points_mm,
                 ground_truth_mm=study.ground_truth_mm, view_scores=[v["dice2d_reprojection"] for v in report["views"]],
-                title=f"angiohull — K={options.resolution}, threshold {options.threshold_px:g} px, engine {result.engine}",
+                title=f"angiohull — K={result.lattice.resolution}, threshold {options.threshold_px:g} px, engine "
+                      f"{result.engine}, {result.preset} preset",
             )
         for name, path in paths.items():
             progress(f"wrote {name}: {path}")
@@ -168,7 +175,7 @@ def _cmd_reconstruct(args) -> int:
     progress = _Progress(not args.quiet)
     study = load_study(args.study)
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines, args.device,
-                                 min_views=args.min_views, calibrate=args.calibrate)
+                                 min_views=args.min_views, calibrate=args.calibrate, preset=args.preset)
     _, report, _ = _run_study(study, options, args.output, progress, figure=not args.no_figure, score=False)
     if not args.quiet:
         per_view = ", ".join(f"{v['name']} {v['dice2d_reprojection']:.1f} %" for v in report["views"])
@@ -186,7 +193,7 @@ def _cmd_evaluate(args) -> int:
     if study.ground_truth_mm is None:
         raise AngiohullError(f"{args.study}: the study has no ground truth; add 'ground_truth: gt.npy' to its study.yaml")
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=False, device=args.device,
-                                 min_views=args.min_views, calibrate=args.calibrate)
+                                 min_views=args.min_views, calibrate=args.calibrate, preset=args.preset)
     _, _, scores = _run_study(study, options, None, progress, figure=False, score=True)
     if args.json:
         print(json.dumps(scores))

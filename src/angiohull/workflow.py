@@ -31,13 +31,14 @@ __all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_s
 class ReconstructOptions:
     """Options of a study reconstruction (the CLI's flags)."""
 
-    resolution: int = DEFAULT_RESOLUTION  # K, lattice points per axis
+    resolution: int | None = DEFAULT_RESOLUTION  # K, lattice points per axis (None: the preset's)
     threshold_px: float = DEFAULT_THRESHOLD_PX  # strict distance threshold, px
     engine: str = "auto"  # carving engine (auto: the fastest exact one)
     centerlines: bool = True  # extract centerline points
     device: str = "cpu"  # where the lookup/octree engines run: cpu or cuda
     min_views: int | None = None  # robust carving: views that must keep a point (None: all, the paper)
     calibrate: bool = False  # estimate per-view image shifts first (calibrate_study)
+    preset: str = "paper"  # "paper" (as published) or "refined" (reconstruction.refine)
 
 
 def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOptions()) -> ReconstructionResult:
@@ -46,6 +47,7 @@ def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOpt
         study.projections, study.masks,
         resolution=options.resolution, threshold_px=options.threshold_px, engine=options.engine,
         centerlines=options.centerlines, view_names=study.names, device=options.device, min_views=options.min_views,
+        preset=options.preset,
     )
 
 
@@ -150,9 +152,9 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
         "angiohull_version": __version__,
         "python": platform.python_version(),
         "study": str(study.root) if study.root is not None else None,
-        "options": {"resolution": options.resolution, "threshold_px": options.threshold_px,
+        "options": {"resolution": result.lattice.resolution, "threshold_px": options.threshold_px,
                     "engine": options.engine, "centerlines": options.centerlines, "device": options.device,
-                    "min_views": options.min_views, "calibrate": options.calibrate},
+                    "min_views": options.min_views, "calibrate": options.calibrate, "preset": options.preset},
         "engine": result.engine,
         "cube_of_interest": {"half_edge_mm": result.lattice.half_edge_mm, "resolution": result.lattice.resolution,
                              "lattice_spacing_mm": result.lattice_spacing_mm, "n_lattice_points": result.lattice.n_points},

@@ -19,6 +19,7 @@ from .cube import MAX_DENSE_RESOLUTION, Lattice
 from .engines import ENGINES, CarveOutcome
 from . import hierarchical  # noqa: F401  (registers the lookup and octree engines)
 from .gpu import CUDA_ENGINES, carve_cuda
+from .refine import REFINED, clean_mask, refine_hull
 
 __all__ = [
     "reconstruct",
@@ -32,6 +33,7 @@ __all__ = [
     "DEFAULT_THRESHOLD_PX",
     "AUTO_ENGINE",
     "ENGINE_CHOICES",
+    "PRESETS",
     "MAX_DENSE_RESOLUTION",
 ]
 
@@ -42,6 +44,8 @@ DEFAULT_THRESHOLD_PX = 1.0
 AUTO_ENGINE = "octree"
 """What ``engine="auto"`` runs: the fastest engine that keeps exactly the reference's points."""
 ENGINE_CHOICES = ("auto", *sorted(ENGINES))
+PRESETS = ("paper", "refined")
+"""``reconstruct(preset=...)``: the method as published, or with the improvements of :mod:`.refine`."""
 """Names accepted by ``reconstruct(engine=...)`` and the CLI's ``--engine``."""
 
 
@@ -59,6 +63,7 @@ class ReconstructionResult:
     survivors_per_view: tuple[int, ...]  # points alive after each view, in the order applied (min_views: kept points each view supports)
     view_order: tuple[int, ...]  # indices of the views in the order the engine applied them
     min_views: int | None = None  # robust carving: views that must keep a point (None: all, the paper)
+    preset: str = "paper"  # "paper" (as published) or "refined" (see reconstruction.refine)
     timings_s: dict[str, float] = field(default_factory=dict)  # seconds per stage: cube, carve, centerlines, reconstruction
 
     @property
@@ -68,7 +73,8 @@ class ReconstructionResult:
 
     @property
     def time_s(self) -> float:
-        """Time of the vessel reconstruction alone (cube of interest + carving), seconds."""
+        """Time of the vessel reconstruction alone (cube of interest + carving, + refinement with the
+        refined preset), seconds."""
         return self.timings_s["reconstruction"]
 
 
@@ -116,10 +122,10 @@ def _empty_hull_error(outcome: CarveOutcome, names: tuple[str, ...], lattice: La
 
 
 def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
-                resolution: int = DEFAULT_RESOLUTION, threshold_px: float = DEFAULT_THRESHOLD_PX,
+                resolution: int | None = None, threshold_px: float = DEFAULT_THRESHOLD_PX,
                 engine: str = "auto", centerlines: bool = True, view_names: Sequence[str] | None = None,
                 half_edge_mm: float | None = None, allow_empty: bool = False, device: str = "cpu",
-                min_views: int | None = None) -> ReconstructionResult:
+                min_views: int | None = None, preset: str = "paper") -> ReconstructionResult:
     """Carve the visual hull of the masks and, optionally, its centerline points.
 
     Parameters
@@ -128,8 +134,9 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         One per view, applied in this order.
     masks : sequence of (rows, cols) arrays
         Nonzero = vessel; shape must equal the projection's ``image_shape``.
-    resolution : int, keyword-only
-        K, lattice points per axis of the cube of interest (default 100, as in the paper).
+    resolution : int, optional, keyword-only
+        K, lattice points per axis of the cube of interest (default: the preset's, 100 for
+        ``"paper"`` as in the paper, 256 for ``"refined"``).
     threshold_px : float, keyword-only
         A point survives a view when its projection is strictly closer than this to a mask pixel
         centre (default 1.0).
@@ -152,12 +159,26 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         Robust carving (beyond the paper): keep a point when at least this many views keep it, so
         that a view with a false-negative segmentation or a missing segment does not carve the
         vessel away. Default None: every view must keep it (the paper's rule).
+    preset : {"paper", "refined"}, keyword-only
+        ``"paper"`` (default): the method as published. ``"refined"`` (beyond the paper, see
+        :mod:`.refine`): specks removed from the masks, a finer lattice, small disconnected parts
+        dropped and the hull trimmed to the vessel radii the views show.
 
     Returns
     -------
     ReconstructionResult
     """
     checked_masks, names = _check_inputs(projections, masks, view_names)
+    if preset not in PRESETS:
+        raise ReconstructionError(f"unknown preset {preset!r}; choose one of {list(PRESETS)}")
+    if resolution is None:
+        resolution = DEFAULT_RESOLUTION if preset == "paper" else REFINED.resolution
+    if preset == "refined":
+        checked_masks = [clean_mask(m, REFINED.min_neighbours, REFINED.fill_neighbours) for m in checked_masks]
+        empty = [names[i] for i, m in enumerate(checked_masks) if not m.any()]
+        if empty:
+            raise ReconstructionError(f"view {empty[0]!r}: the refined preset's speck removal leaves the mask empty "
+                                      f"(only isolated pixels); use preset='paper'")
     threshold = _v.positive_finite(threshold_px, "threshold_px", error=ReconstructionError)
     if engine not in ENGINE_CHOICES:
         raise ReconstructionError(f"unknown engine {engine!r}; choose one of {list(ENGINE_CHOICES)}")
@@ -186,8 +207,13 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         outcome = ENGINES[engine](lattice, list(projections), checked_masks, threshold_px=threshold,
                                   min_views=min_views)
     timings["carve"] = time.perf_counter() - start
-    timings["reconstruction"] = timings["cube"] + timings["carve"]
-    if len(outcome.points_mm) == 0 and not allow_empty:
+    points = outcome.points_mm
+    if preset == "refined":
+        start = time.perf_counter()
+        points, _ = refine_hull(points, lattice, projections, checked_masks, REFINED)
+        timings["refine"] = time.perf_counter() - start
+    timings["reconstruction"] = timings["cube"] + timings["carve"] + timings.get("refine", 0.0)
+    if len(points) == 0 and not allow_empty:
         if min_views is not None:
             raise EmptyHullError(f"the visual hull is empty: no lattice point is kept by {min_views} of the "
                                  f"{len(names)} views; check the calibration and the masks",
@@ -197,11 +223,11 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     centerline_points = None
     if centerlines:
         start = time.perf_counter()
-        centerline_points = extract_centerlines(outcome.points_mm, projections, checked_masks)
+        centerline_points = extract_centerlines(points, projections, checked_masks)
         timings["centerlines"] = time.perf_counter() - start
     timings["total"] = sum(v for k, v in timings.items() if k != "reconstruction")
     return ReconstructionResult(
-        vessel_points_mm=outcome.points_mm,
+        vessel_points_mm=points,
         centerline_points_mm=centerline_points,
         lattice=lattice,
         engine=engine,
@@ -211,5 +237,6 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         survivors_per_view=outcome.survivors_per_view,
         view_order=outcome.order if outcome.order is not None else tuple(range(len(names))),
         min_views=min_views,
+        preset=preset,
         timings_s=timings,
     )
