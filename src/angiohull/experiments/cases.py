@@ -45,6 +45,7 @@ from ..errors import AngiohullError
 from ..geometry import CArmGeometry, Projection, cube_half_edge_mm, format_clinical_angles
 from ..metrics import dice2d_paper, dice2d_plain, scores_3d
 from ..reconstruction import reconstruct
+from ..reconstruction.calibration import calibrate_shifts
 from ..synthetic.case import GT_SURFACE_SPACING_MM
 from ..synthetic.corruptions import CorruptionSpec, apply_all, draw_corruptions
 from ..synthetic.render import PAPER_SURFACE_SPACING_MM, render_mask
@@ -420,17 +421,24 @@ def _score_case(params: dict[str, Any], row: dict[str, Any]) -> None:
         if not mask.any():
             raise AngiohullError(f"view {name}: the corruptions erased every vessel pixel")
     options = params["reconstruction"]
-    result = reconstruct(list(inputs.projections), list(inputs.masks), resolution=options["resolution"],
+    projections = list(inputs.projections)
+    if options.get("calibrate"):
+        projections = calibrate_shifts(projections, list(inputs.masks), threshold_px=options["threshold_px"]).corrected(projections)
+    result = reconstruct(projections, list(inputs.masks), resolution=options["resolution"],
                          threshold_px=options["threshold_px"], engine=options["engine"], centerlines=False,
-                         view_names=inputs.names, allow_empty=True)
+                         view_names=inputs.names, allow_empty=True, preset=options.get("preset", "paper"),
+                         min_views=options.get("min_views"))
     points = result.vessel_points_mm
     metrics = params["metrics"]
     row["n_points"] = int(len(points))
     if len(points) == 0:
-        step = next(i for i, n in enumerate(result.survivors_per_view) if n == 0)
-        view = result.view_order[step]
+        step = next((i for i, n in enumerate(result.survivors_per_view) if n == 0), None)
         row["status"] = "empty"
-        row["reason"] = f"empty visual hull: view {view} ({inputs.names[view]}) removed the last points"
+        if step is None:
+            row["reason"] = "empty reconstruction after the refined preset's filtering or k-of-N carving"
+        else:
+            view = result.view_order[step]
+            row["reason"] = f"empty visual hull: view {view} ({inputs.names[view]}) removed the last points"
     if {"dice3d", "iou3d", "chamfer_mm"} & set(metrics):
         s3 = scores_3d(points, inputs.ground_truth_mm)
         for name in ("dice3d", "iou3d", "chamfer_mm"):
@@ -438,10 +446,10 @@ def _score_case(params: dict[str, Any], row: dict[str, Any]) -> None:
                 row[name] = getattr(s3, name)
     if "dice2d_paper" in metrics:
         spacing = params["generator"]["pixel_mm"]
-        row["dice2d_paper"] = float(np.mean(dice2d_paper(points, inputs.projections, inputs.masks,
+        row["dice2d_paper"] = float(np.mean(dice2d_paper(points, projections, inputs.masks,
                                                          detector_spacings_mm=[spacing] * len(inputs.masks))))
     if "dice2d" in metrics:
-        row["dice2d"] = float(np.mean(dice2d_plain(points, inputs.projections, inputs.masks,
+        row["dice2d"] = float(np.mean(dice2d_plain(points, projections, inputs.masks,
                                                    cell_mm=result.lattice_spacing_mm)))
     if "time_s" in metrics:
         row["time_s"] = result.time_s

@@ -120,8 +120,12 @@ class ReconstructionSettings(_Model):
     """Options of :func:`angiohull.reconstruct` (the paper's by default; ``octree`` keeps the kdtree's points)."""
 
     engine: Literal["octree", "kdtree", "lookup", "auto"] = "octree"
-    resolution: int = Field(100, ge=2, le=1024, description="K, lattice points per axis")
+    resolution: Optional[int] = Field(None, ge=2, le=1024,
+                                      description="K, lattice points per axis (default: the preset's, 100 or 256)")
     threshold_px: float = Field(1.0, gt=0, description="strict distance threshold, px")
+    preset: Literal["paper", "refined"] = Field("paper", description="the method as published, or refined (beyond the paper)")
+    calibrate: bool = Field(False, description="estimate per-view image shifts first (beyond the paper)")
+    min_views: Optional[int] = Field(None, ge=1, description="robust carving: views that must keep a point (default all)")
 
     @field_validator("threshold_px")
     @classmethod

@@ -25,7 +25,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import AngiohullError
-from .config import NViewsDesign, AnglesDesign, TreesDesign
+from .config import NViewsDesign, TreesDesign
 from .figures import METRIC_LABELS, curve_figure, group_figure
 from .paper import PAPER_CITATION, PAPER_RESULTS
 from .runner import CONFIG_FILE, RunData, load_run
@@ -98,6 +98,8 @@ def analyse_run(data: RunData) -> dict[str, Any]:
         "name": config.name, "mode": config.mode, "description": config.description, "paper_ref": config.paper,
         "design": config.design.type, "engine": config.reconstruction.engine,
         "resolution": config.reconstruction.resolution, "threshold_px": config.reconstruction.threshold_px,
+        "preset": config.reconstruction.preset, "calibrate": config.reconstruction.calibrate,
+        "min_views": config.reconstruction.min_views,
         "rasteriser": config.generator.rasteriser, "cases_total": data.total, "cases_done": len(rows),
         "status_counts": statuses, "metrics": metrics,
         "wall_s": float(sum(i.get("wall_s", 0.0) for i in invocations)),
@@ -204,7 +206,9 @@ def render_markdown(analyses: Sequence[dict[str, Any]], figures: dict[str, str])
         counts = ", ".join(f"{n} {s}" for s, n in sorted(a["status_counts"].items()))
         timing = a["timing"]["time_s"]
         run_rows.append([a["name"], a["mode"], f"{a['cases_done']}/{a['cases_total']}", counts or "-",
-                         f"{a['engine']}, K={a['resolution']}, {a['threshold_px']:g} px", _duration(a["wall_s"]),
+                         f"{a['engine']}, K={a['resolution'] or 'preset default'}, {a['threshold_px']:g} px, "
+                         f"{a.get('preset', 'paper')}{', calibrated' if a.get('calibrate') else ''}"
+                         f"{', min_views ' + str(a['min_views']) if a.get('min_views') else ''}", _duration(a["wall_s"]),
                          "; ".join(a["executors"]) or "-",
                          _fmt("time_s", timing["mean"]) if timing else "n/a"])
     lines += _table(["experiment", "mode", "cases", "status", "reconstruction", "wall time", "run on",

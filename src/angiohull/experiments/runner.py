@@ -359,7 +359,8 @@ def run_experiment(config: ExperimentConfig, run_dir: str | Path, *, workers: Op
     started = datetime.now(timezone.utc).isoformat(timespec="seconds")
     if stream is not None:
         print(f"{config.name}: {total} cases ({config.mode}), {len(known)} already done; running {len(pending)} on "
-              f"{executor}; engine {config.reconstruction.engine}, K={config.reconstruction.resolution}",
+              f"{executor}; engine {config.reconstruction.engine}, K={config.reconstruction.resolution or 'preset default'}, "
+              f"preset {config.reconstruction.preset}",
               file=stream, flush=True)
     start = time.perf_counter()
     try:
