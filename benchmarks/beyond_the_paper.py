@@ -77,7 +77,7 @@ def _peer(task):
 
 def _table(title, results, order):
     print(f"\n### {title}\n")
-    methods = [m for m in METHODS if any(m in r for r in results.values())]
+    methods = [m for m in METHODS if any(m in row for rows in results.values() for row in rows)]
     print("| setting | " + " | ".join(f"{m}: Dice3D % / Chamfer mm" for m in methods) + " |")
     print("|---|" + "---|" * len(methods))
     for setting in order:

@@ -303,11 +303,11 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
     half_edge = cube_half_edge_mm(projections)  # the lattice stays where the headers put it
     levels = [(_Level(projections, masks, half_edge, k, threshold_px), max(2, int(np.ceil(max_shift_px * f))))
               for k, f in CALIBRATION_LEVELS]
-    coarse, window = levels[0]
-    maps = coarse.support_maps(np.zeros((n, 2)), window)
+    coarse, coarse_window = levels[0]
+    maps = coarse.support_maps(np.zeros((n, 2)), coarse_window)
     # The first move decides which views carry the correction; near-ties (e.g. two views that share
     # an image axis) are all followed to the end and the most consistent outcome is kept.
-    gains = [_best(m, window) for m in maps]
+    gains = [_best(m, coarse_window) for m in maps]
     top = max(g[0] for g in gains)
     starts = [v for v, g in enumerate(gains) if top >= min_gain and g[0] >= 0.8 * top] or [None]
     outcomes = []
@@ -316,14 +316,14 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
         history: list[tuple[int, int, float, float, float]] = []
         if first is not None:
             shifts[first] += gains[first][1:]
-            history.append((levels[0][0].lattice.resolution, first, *map(float, gains[first][1:]), gains[first][0]))
+            history.append((coarse.lattice.resolution, first, *map(float, gains[first][1:]), gains[first][0]))
         for index, (level, window) in enumerate(levels):
             needed = min_gain if index == 0 else 0.1 * min_gain
             _greedy(level, window, shifts, history, needed, rounds)
         last = levels[-1][0]
         _subpixel(last, shifts)
         outcomes.append((last.coverage(shifts), shifts, history))
-    score, shifts, history = max(outcomes, key=lambda o: o[0])
+    _, shifts, history = max(outcomes, key=lambda o: o[0])
     level = levels[-1][0]
     jacobians = [_jacobian(p) for p in projections]
     final, translation = _gauge(shifts, jacobians)
