@@ -30,7 +30,7 @@ import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Iterable, Optional, Sequence, Union, get_args
+from typing import Annotated, Any, Iterable, Optional, Sequence, Union
 
 import numpy as np
 import yaml
@@ -39,6 +39,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from . import _validation as _v
 from . import dicom, io
 from .errors import DicomError, GeometryError, SegmentationError, StudyError
+from ._models import find_model, short_repr
 from .geometry import CArmGeometry, Projection
 from .segmentation import SegmentationParameters, segment_vessels
 
@@ -351,29 +352,14 @@ def _format_loc(loc: Iterable[Union[str, int]]) -> str:
     return text
 
 
-def _find_model(annotation: Any) -> Optional[type[BaseModel]]:
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return annotation
-    for argument in get_args(annotation):
-        found = _find_model(argument)
-        if found is not None:
-            return found
-    return None
-
-
 def _model_at(loc: Sequence[Union[str, int]]) -> Optional[type[BaseModel]]:
     """The schema model that holds the keys at ``loc`` (list indices are skipped)."""
     model: Optional[type[BaseModel]] = _StudyFile
     for part in loc:
         if isinstance(part, str) and model is not None:
             field = model.model_fields.get(part)
-            model = None if field is None else _find_model(field.annotation)
+            model = None if field is None else find_model(field.annotation)
     return model
-
-
-def _short(value: Any, limit: int = 80) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _received(value: Any) -> str:
@@ -384,7 +370,7 @@ def _received(value: Any) -> str:
             hint = f" (YAML read this as text; write the number as {number})"
         except ValueError:
             pass
-    return f"got {_short(value)} ({type(value).__name__}){hint}"
+    return f"got {short_repr(value)} ({type(value).__name__}){hint}"
 
 
 def _pydantic_problem(error: Any) -> tuple[str, str]:

@@ -36,6 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from pydantic_core import PydanticCustomError
 
 from ..errors import AngiohullError
+from .._models import find_model, short_repr
 from ..synthetic.corruptions import CORRUPTION_KINDS, CorruptionSpec, parse_corruption
 from ..synthetic.views import parse_views
 
@@ -431,13 +432,8 @@ def _format_loc(loc) -> str:
     return text or "(top level)"
 
 
-def _short(value: Any, limit: int = 80) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
 def _got(value: Any) -> str:
-    return f"got {_short(value)} ({type(value).__name__})"
+    return f"got {short_repr(value)} ({type(value).__name__})"
 
 
 def _model_at(loc) -> Optional[type[BaseModel]]:
@@ -454,21 +450,9 @@ def _model_at(loc) -> Optional[type[BaseModel]]:
                 i += 2
                 continue
             field = model.model_fields.get(part)
-            model = None if field is None else _find_model(field.annotation)
+            model = None if field is None else find_model(field.annotation)
         i += 1
     return model
-
-
-def _find_model(annotation: Any) -> Optional[type[BaseModel]]:
-    from typing import get_args
-
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return annotation
-    for argument in get_args(annotation):
-        found = _find_model(argument)
-        if found is not None:
-            return found
-    return None
 
 
 def _describe(error: dict) -> tuple[str, str]:

@@ -100,6 +100,18 @@ def _children(xp, starts, size: int, k: int):
     return children[(children < k).all(axis=1)]
 
 
+def _leaf_points(xp, starts, size: int, k: int, axis, chunk_points: int):
+    """The lattice points of the leaf cells, chunk by chunk: ``(flat index, x, y, z)`` arrays."""
+    r = xp.arange(size, dtype=np.int64)
+    offsets = xp.stack(xp.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+    cells_per_chunk = max(1, chunk_points // size ** 3)
+    for c in range(0, len(starts), cells_per_chunk):
+        ijk = (starts[c:c + cells_per_chunk, None, :] + offsets[None]).reshape(-1, 3)
+        ijk = ijk[(ijk < k).all(axis=1)]
+        flat = (ijk[:, 0] * k + ijk[:, 1]) * k + ijk[:, 2]
+        yield flat, axis[ijk[:, 0]], axis[ijk[:, 1]], axis[ijk[:, 2]]
+
+
 def carve_hierarchical(lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
                        threshold_px: float, root_size: int, leaf_size: int, xp: Any = np,
                        chunk_points: int = CHUNK_POINTS, min_views: int | None = None) -> CarveOutcome:
@@ -132,16 +144,9 @@ def carve_hierarchical(lattice: Lattice, projections: Sequence[Projection], mask
         size //= 2
     if len(starts) == 0:  # culled away: say which view removed the last cells
         return CarveOutcome(np.empty((0, 3)), tuple(cell_survivors), order)
-    r = xp.arange(size, dtype=np.int64)
-    offsets = xp.stack(xp.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
     survivors = [0] * len(order)
     kept = []
-    cells_per_chunk = max(1, chunk_points // size ** 3)
-    for c in range(0, len(starts), cells_per_chunk):
-        ijk = (starts[c:c + cells_per_chunk, None, :] + offsets[None]).reshape(-1, 3)
-        ijk = ijk[(ijk < k).all(axis=1)]
-        flat = (ijk[:, 0] * k + ijk[:, 1]) * k + ijk[:, 2]
-        x, y, z = axis[ijk[:, 0]], axis[ijk[:, 1]], axis[ijk[:, 2]]
+    for flat, x, y, z in _leaf_points(xp, starts, size, k, axis, chunk_points):
         for i, test in enumerate(exact):
             if len(flat):
                 sel = test.kept(x, y, z)
@@ -181,15 +186,8 @@ def _carve_k_of_n(lattice: Lattice, projections: Sequence[Projection], masks: Se
     survivors = [0] * n
     if len(starts) == 0:
         return CarveOutcome(np.empty((0, 3)), tuple(survivors))
-    r = xp.arange(size, dtype=np.int64)
-    offsets = xp.stack(xp.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
     kept = []
-    cells_per_chunk = max(1, chunk_points // size ** 3)
-    for c in range(0, len(starts), cells_per_chunk):
-        ijk = (starts[c:c + cells_per_chunk, None, :] + offsets[None]).reshape(-1, 3)
-        ijk = ijk[(ijk < k).all(axis=1)]
-        flat = (ijk[:, 0] * k + ijk[:, 1]) * k + ijk[:, 2]
-        x, y, z = axis[ijk[:, 0]], axis[ijk[:, 1]], axis[ijk[:, 2]]
+    for flat, x, y, z in _leaf_points(xp, starts, size, k, axis, chunk_points):
         support = xp.zeros((n, len(flat)), dtype=bool)
         for i, test in enumerate(exact):
             support[i, test.kept(x, y, z)] = True
