@@ -42,11 +42,11 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 
 from ..errors import AngiohullError
-from ..geometry import CArmGeometry, Projection, cube_half_edge_mm, format_clinical_angles
+from ..geometry import CArmGeometry, Projection, format_clinical_angles
 from ..metrics import dice2d_paper, dice2d_plain, scores_3d
 from ..reconstruction import reconstruct
 from ..reconstruction.calibration import calibrate_shifts
-from ..synthetic.case import GT_SURFACE_SPACING_MM
+from ..synthetic.case import GT_SURFACE_SPACING_MM, fit_problem
 from ..synthetic.corruptions import CorruptionSpec, apply_all, draw_corruptions
 from ..synthetic.render import PAPER_SURFACE_SPACING_MM, render_mask
 from ..synthetic.tree import TORTUOSITY_LEVELS, TREE_KINDS, build_tree, draw_tree_params
@@ -139,11 +139,6 @@ def sweep_values(config: ExperimentConfig) -> list[Any]:
 
 
 # -- expansion --------------------------------------------------------------------------------------
-def _spec_dict(spec: CorruptionSpec) -> dict[str, Any]:
-    views = spec.views if spec.views is None or isinstance(spec.views, str) else list(spec.views)
-    return {"kind": spec.kind, "values": list(spec.values), "views": views}
-
-
 def _sweep_fields(kind: str, value: Any) -> dict[str, Any]:
     if kind == "translate":
         tx, ty = value
@@ -168,7 +163,7 @@ def expand_cases(config: ExperimentConfig) -> list[dict[str, Any]]:
         "reconstruction": config.reconstruction.model_dump(mode="json"),
         "metrics": list(config.metrics),
     }
-    fixed = [_spec_dict(spec) for spec in generator.corruption_specs()]
+    fixed = [spec.to_dict() for spec in generator.corruption_specs()]
     design = config.design
     cases: list[dict[str, Any]] = []
 
@@ -198,7 +193,7 @@ def expand_cases(config: ExperimentConfig) -> list[dict[str, Any]]:
                     add(level, tree_index, views, require_fit=True)
                 else:
                     value = values[j]
-                    add(level, tree_index, views, corruptions=[_spec_dict(sweep.spec(value))],
+                    add(level, tree_index, views, corruptions=[sweep.spec(value).to_dict()],
                         columns=_sweep_fields(sweep.corruption, value), require_fit=True, sweep=sweep.corruption)
     elif isinstance(design, NViewsDesign):
         rng = np.random.default_rng(derive_seed(config.seed, DIRECTION_STREAM))
@@ -336,9 +331,7 @@ def case_inputs(params: dict[str, Any]) -> CaseInputs:
                                   pixel_spacing_mm=(g["pixel_mm"], g["pixel_mm"]), image_shape=(g["size"], g["size"])))
     tree_key = (kind, tortuosity, seed)
     clean = [_clean_mask(tree_key, assets, carm, g["rasteriser"]) for carm in carms]
-    specs = [CorruptionSpec(c["kind"], tuple(c["values"]),
-                            c["views"] if c["views"] is None or isinstance(c["views"], str) else tuple(c["views"]))
-             for c in params["corruptions"]]
+    specs = [CorruptionSpec.from_dict(c) for c in params["corruptions"]]
     corruption_stream = np.random.SeedSequence(seed).spawn(2)[1]  # make_case's convention
     records = draw_corruptions(specs, clean, np.random.default_rng(corruption_stream)) if specs else [[] for _ in clean]
     masks = [apply_all(mask, recs) if recs else mask for mask, recs in zip(clean, records)]
@@ -348,19 +341,8 @@ def case_inputs(params: dict[str, Any]) -> CaseInputs:
 
 def _fit_problem(ground_truth: np.ndarray, projections: Sequence[Projection]) -> tuple[Optional[str], float]:
     """(make_case's objection to the tree, or None; fraction of GT points outside some view's image)."""
-    outside = np.zeros(len(ground_truth), dtype=bool)
-    for projection in projections:
-        uv = projection.project(ground_truth)
-        rows, cols = projection.image_shape
-        outside |= (uv[:, 0] < 0) | (uv[:, 0] > cols - 1) | (uv[:, 1] < 0) | (uv[:, 1] > rows - 1)
-    fraction = float(outside.mean()) if len(outside) else 0.0
-    half = cube_half_edge_mm(projections)
-    reach = float(np.abs(ground_truth).max())
-    if reach >= half:
-        return f"the tree reaches {reach:.1f} mm from the isocentre, beyond the cube of interest (±{half:.1f} mm)", fraction
-    if outside.any():
-        return f"{int(outside.sum())} ground-truth surface point(s) project outside an image", fraction
-    return None, fraction
+    problem, outside = fit_problem(ground_truth, projections)
+    return problem, float(outside.mean()) if len(outside) else 0.0
 
 
 def _base_row(params: dict[str, Any]) -> dict[str, Any]:

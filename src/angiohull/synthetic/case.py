@@ -27,14 +27,14 @@ import numpy as np
 from .. import __version__
 from .. import _validation as _v
 from ..errors import AngiohullError
-from ..geometry import CArmGeometry, cube_half_edge_mm
+from ..geometry import CArmGeometry, Projection, cube_half_edge_mm
 from ..study import View, save_study
 from .corruptions import CorruptionSpec, apply_all, corruption_from_dict, draw_corruptions, parse_corruption
 from .render import PAPER_SURFACE_SPACING_MM, RASTERISERS, render_mask
 from .tree import TORTUOSITY_LEVELS, TREE_KINDS, CoronaryTree, TreeParams, build_tree, draw_tree_params
 from .views import carm_views
 
-__all__ = ["SynthOptions", "SyntheticCase", "make_case", "write_case", "read_case_record", "replay_case",
+__all__ = ["SynthOptions", "SyntheticCase", "make_case", "write_case", "read_case_record", "replay_case", "fit_problem",
            "GT_SURFACE_SPACING_MM", "GT_LUMEN_SPACING_MM"]
 
 GT_SURFACE_SPACING_MM = 0.3
@@ -89,9 +89,7 @@ class SynthOptions:
                 "views": self.views if isinstance(self.views, str) else list(self.views),
                 "sid_mm": self.sid_mm, "sod_mm": self.sod_mm, "pixel_mm": self.pixel_mm, "size": self.size,
                 "rasteriser": self.rasteriser,
-                "corruptions": [{"kind": c.kind, "values": list(c.values),
-                                 "views": c.views if c.views is None or isinstance(c.views, str) else list(c.views)}
-                                for c in self.corruptions],
+                "corruptions": [c.to_dict() for c in self.corruptions],
                 "seed": self.seed}
 
 
@@ -127,22 +125,42 @@ class SyntheticCase:
         }
 
 
-def _check_fits(tree: CoronaryTree, geometries: Sequence[tuple[str, CArmGeometry]], surface: np.ndarray) -> None:
-    """The tree must lie inside the cube of interest and inside every view's image."""
-    projections = [g.projection() for _, g in geometries]
-    half = cube_half_edge_mm(projections)
-    reach = float(np.abs(surface).max())
-    if reach >= half:
-        raise AngiohullError(
-            f"the tree reaches {reach:.1f} mm from the isocentre but the cube of interest of these views is only "
-            f"±{half:.1f} mm; use a larger detector (--size, --pixel-mm) or a smaller magnification (--sid-mm/--sod-mm)")
-    for (name, _), projection in zip(geometries, projections):
-        uv = projection.project(surface)
+def fit_problem(surface_mm: np.ndarray, projections: Sequence[Projection],
+                names: Sequence[str] | None = None) -> tuple[str | None, np.ndarray]:
+    """Whether a tree fits the views: inside the cube of interest and inside every view's image.
+
+    Returns
+    -------
+    problem : str or None
+        Why it does not fit (the cube, else the first view an image point falls outside of), or None.
+    outside : (N,) bool array
+        Surface points that project outside some view's image.
+    """
+    names = list(names) if names is not None else [f"view{i}" for i in range(len(projections))]
+    outside = np.zeros(len(surface_mm), dtype=bool)
+    problem = None
+    for name, projection in zip(names, projections):
+        uv = projection.project(surface_mm)
         rows, cols = projection.image_shape
-        outside = (uv[:, 0] < 0) | (uv[:, 0] > cols - 1) | (uv[:, 1] < 0) | (uv[:, 1] > rows - 1)
-        if outside.any():
-            raise AngiohullError(f"view {name}: {int(outside.sum())} surface point(s) of the tree project outside the "
-                                 f"{rows}x{cols} image; use a larger detector (--size, --pixel-mm)")
+        here = (uv[:, 0] < 0) | (uv[:, 0] > cols - 1) | (uv[:, 1] < 0) | (uv[:, 1] > rows - 1)
+        if problem is None and here.any():
+            problem = (f"view {name}: {int(here.sum())} surface point(s) of the tree project outside the "
+                       f"{rows}x{cols} image; use a larger detector (--size, --pixel-mm)")
+        outside |= here
+    half = cube_half_edge_mm(projections)
+    reach = float(np.abs(surface_mm).max()) if len(surface_mm) else 0.0
+    if reach >= half:
+        problem = (f"the tree reaches {reach:.1f} mm from the isocentre but the cube of interest of these views is "
+                   f"only ±{half:.1f} mm; use a larger detector (--size, --pixel-mm) or a smaller magnification "
+                   f"(--sid-mm/--sod-mm)")
+    return problem, outside
+
+
+def _clean_masks(tree: CoronaryTree, options: SynthOptions,
+                 geometries: Sequence[tuple[str, CArmGeometry]]) -> list[np.ndarray]:
+    """The tree's masks in the views, before any corruption."""
+    splat = tree.phantom.surface_points_mm(PAPER_SURFACE_SPACING_MM) if options.rasteriser == "paper" else None
+    return [render_mask(tree.phantom, g.projection(), options.rasteriser, surface_points_mm=splat) for _, g in geometries]
 
 
 def make_case(options: SynthOptions = SynthOptions(), *, tree_params: TreeParams | None = None) -> SyntheticCase:
@@ -171,9 +189,10 @@ def make_case(options: SynthOptions = SynthOptions(), *, tree_params: TreeParams
     tree = build_tree(tree_params)
     geometries = options.geometries()
     surface = tree.phantom.surface_points_mm(GT_SURFACE_SPACING_MM)
-    _check_fits(tree, geometries, surface)
-    splat = tree.phantom.surface_points_mm(PAPER_SURFACE_SPACING_MM) if options.rasteriser == "paper" else None
-    clean = [render_mask(tree.phantom, g.projection(), options.rasteriser, surface_points_mm=splat) for _, g in geometries]
+    problem, _ = fit_problem(surface, [g.projection() for _, g in geometries], [name for name, _ in geometries])
+    if problem is not None:
+        raise AngiohullError(problem)
+    clean = _clean_masks(tree, options, geometries)
     records = draw_corruptions(options.corruptions, clean, np.random.default_rng(corruption_seq))
     views, changed = [], []
     for (name, geometry), mask, view_records in zip(geometries, clean, records):
@@ -223,17 +242,14 @@ def replay_case(folder: str | Path) -> SyntheticCase:
     """
     params, record = read_case_record(folder)
     opts = record["options"]
-    specs = tuple(CorruptionSpec(c["kind"], tuple(c["values"]),
-                                 c["views"] if c["views"] is None or isinstance(c["views"], str) else tuple(c["views"]))
-                  for c in opts["corruptions"])
+    specs = tuple(CorruptionSpec.from_dict(c) for c in opts["corruptions"])
     options = SynthOptions(kind=opts["kind"], tortuosity=opts["tortuosity"],
                            views=opts["views"] if isinstance(opts["views"], str) else tuple(opts["views"]),
                            sid_mm=opts["sid_mm"], sod_mm=opts["sod_mm"], pixel_mm=opts["pixel_mm"], size=opts["size"],
                            rasteriser=opts["rasteriser"], corruptions=specs, seed=record["seed"])
     tree = build_tree(params)
     geometries = options.geometries()
-    splat = tree.phantom.surface_points_mm(PAPER_SURFACE_SPACING_MM) if options.rasteriser == "paper" else None
-    clean = [render_mask(tree.phantom, g.projection(), options.rasteriser, surface_points_mm=splat) for _, g in geometries]
+    clean = _clean_masks(tree, options, geometries)
     per_view = [[corruption_from_dict(c) for c in entry["records"]] for entry in record["corruptions"]]
     views = [View.from_carm(name, apply_all(mask, recs), g) for (name, g), mask, recs in zip(geometries, clean, per_view)]
     changed = tuple(tuple(entry["changed_pixels"]) for entry in record["corruptions"])

@@ -253,6 +253,16 @@ class CorruptionSpec:
             object.__setattr__(self, "views", views)
         object.__setattr__(self, "values", values)
 
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready ``{"kind", "values", "views"}``; :meth:`from_dict` gives back an equal spec."""
+        views = self.views if self.views is None or isinstance(self.views, str) else list(self.views)
+        return {"kind": self.kind, "values": list(self.values), "views": views}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "CorruptionSpec":
+        views = data.get("views")
+        return cls(data["kind"], tuple(data["values"]), views if views is None or isinstance(views, str) else tuple(views))
+
     def view_indices(self, n_views: int) -> tuple[int, ...]:
         if self.views is None:
             return (0,) if self.kind in _GEOMETRIC else tuple(range(n_views))
