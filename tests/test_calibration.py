@@ -56,9 +56,10 @@ def test_one_view_shifted_by_20_px_is_found_and_the_hull_restored(seed):
     masks = [v.mask for v in shifted.views]
     calibration = calibrate_shifts(projections, masks)
     shifts = np.array(calibration.shifts_px)
-    # Measured on seeds 0-5 (docs): view 0 within 1.8 px of (20, 0), the others within 0.6 px.
-    assert np.linalg.norm(shifts[0] - [20.0, 0.0]) < 2.0
-    assert np.linalg.norm(shifts[1:], axis=1).max() < 1.0
+    # Measured on seeds 0-11 (docs): view 0 within 1.2 px of (20, 0) (0.17 / 0.47 px on seeds 1 / 2),
+    # the others within 0.4 px.
+    assert np.linalg.norm(shifts[0] - [20.0, 0.0]) < 1.0
+    assert np.linalg.norm(shifts[1:], axis=1).max() < 0.5
 
     def dice3d(projs, ms):
         points = reconstruct(projs, ms, centerlines=False, allow_empty=True).vessel_points_mm

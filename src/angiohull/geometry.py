@@ -94,6 +94,11 @@ class Projection:
         with np.errstate(divide="ignore", invalid="ignore"):
             return h[:, :2] / h[:, 2:3]
 
+    def shifted(self, du_px: float, dv_px: float) -> "Projection":
+        """The projection whose image is moved by ``(du, dv)`` pixels: ``T(du, dv) P``."""
+        shift = np.array([[1.0, 0.0, du_px], [0.0, 1.0, dv_px], [0.0, 0.0, 1.0]])
+        return Projection(shift @ self.matrix, self.image_shape)
+
     def depth_mm(self, points_mm: np.ndarray) -> np.ndarray:
         """Distance (mm) of each point from the source along the viewing axis; > 0 in front."""
         h = self.homogeneous(points_mm)

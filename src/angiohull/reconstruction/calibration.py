@@ -22,9 +22,13 @@ that maximises that agreement:
    of place carves vessel away in every view). When several views gain almost as much in the first
    round (within 20 %), each is tried as the first move and the outcome with the highest final
    coverage is kept.
-3. **Coarse to fine.** The same rounds on finer lattices with a smaller search window, then a
-   sub-pixel peak (a parabola through the support around its maximum, per axis).
-4. **Gauge.** Shifting every view by the projection of one common 3D translation changes nothing
+3. **Coarse to fine.** The same rounds on finer lattices with a smaller search window.
+4. **Centreline fit** (three views or more, :mod:`.centreline_fit`). The support score is flat
+   over a pixel or two and leans towards phantom volume; the last step fits each view's shift to
+   the 2D centrelines of the others, triangulated along epipolar planes, to a fraction of a pixel.
+   With two views (nothing to triangulate against) a finer lattice (K = 256) and a parabola
+   through the support around its peak take its place.
+5. **Gauge.** Shifting every view by the projection of one common 3D translation changes nothing
    but where the object sits (``J_v t`` with ``J_v`` the Jacobian of view ``v`` at the isocentre).
    Of the equivalent corrections, the one that moves the fewest views by a pixel or more, then the
    shortest in total, is reported (candidates: no translation, and the translations that leave
@@ -50,12 +54,14 @@ from scipy.signal import fftconvolve
 from ..errors import ReconstructionError
 from ..geometry import Projection, cube_half_edge_mm
 from .cube import Lattice
+from .centreline_fit import Centreline, polish_shifts
 from .engines import ENGINES
 
 __all__ = ["Calibration", "calibrate_shifts", "shift_projection", "CALIBRATION_LEVELS"]
 
 CALIBRATION_LEVELS: tuple[tuple[int, float], ...] = ((64, 1.0), (112, 0.25), (160, 0.1), (256, 0.05))
-"""(lattice resolution K, search window as a fraction of max_shift_px) of the coarse-to-fine levels."""
+"""(lattice resolution K, search window as a fraction of max_shift_px) of the coarse-to-fine levels;
+the last one is used only with two views (with more, the centreline fit replaces it)."""
 
 
 _MOVED_PX = 1.0  # a view whose correction is shorter than this counts as unmoved (gauge choice)
@@ -64,8 +70,7 @@ _MIN_COVERAGE_GAIN = 0.001  # a move must raise the mean mask coverage by more t
 
 def shift_projection(projection: Projection, du_px: float, dv_px: float) -> Projection:
     """The projection whose image is moved by ``(du, dv)`` pixels: ``T(du, dv) P``."""
-    shift = np.array([[1.0, 0.0, du_px], [0.0, 1.0, dv_px], [0.0, 0.0, 1.0]])
-    return Projection(shift @ projection.matrix, projection.image_shape)
+    return projection.shifted(du_px, dv_px)
 
 
 @dataclass(frozen=True)
@@ -87,7 +92,7 @@ class Calibration:
     def to_dict(self, names: Sequence[str] | None = None) -> dict:
         names = list(names) if names is not None else [f"view{i}" for i in range(len(self.shifts_px))]
         return {
-            "method": "greedy leave-one-out support maximisation, coarse to fine; gauge: least total shift",
+            "method": "greedy leave-one-out support maximisation, coarse to fine, then a fit to the other views' triangulated centrelines; gauge: fewest views moved, then least total shift",
             "shifts_px": {n: {"du": s[0], "dv": s[1]} for n, s in zip(names, self.shifts_px)},
             "gauge_translation_mm": list(self.gauge_translation_mm),
             "coverage_before": dict(zip(names, self.coverage_before)),
@@ -240,9 +245,9 @@ def _parabolic(values: np.ndarray, index: int) -> float:
     return float(np.clip(0.5 * (left - right) / denominator, -0.5, 0.5)) if denominator < 0 else 0.0
 
 
-def _gauge(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Of the corrections equivalent up to a common 3D translation, the one that moves the fewest
-    views (corrections of at least _MOVED_PX), then the shortest in total.
+def _gauge_alternatives(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """The corrections equivalent to ``shifts`` up to a common 3D translation (to first order), as
+    ``(views moved by at least _MOVED_PX, corrected shifts, translation)``.
 
     Candidates: no translation, and for every view and every pair of views the translation that
     (in the least-squares sense) leaves them unmoved.
@@ -254,11 +259,21 @@ def _gauge(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> tuple[np.ndar
         for w in range(v + 1, n):
             a = np.vstack([jacobians[v], jacobians[w]])
             candidates.append(np.linalg.lstsq(a, np.concatenate([shifts[v], shifts[w]]), rcond=None)[0])
-    best = None
+    out = []
     for t in candidates:
         corrected = shifts - np.stack([j @ t for j in jacobians])
+        out.append((int(np.count_nonzero(np.linalg.norm(corrected, axis=1) >= _MOVED_PX)), corrected, t))
+    return out
+
+
+def _gauge(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Of the corrections equivalent up to a common 3D translation, the one that moves the fewest
+    views (corrections of at least _MOVED_PX), then the shortest in total (candidates: see
+    :func:`_gauge_alternatives`)."""
+    best = None
+    for count, corrected, t in _gauge_alternatives(shifts, jacobians):
         lengths = np.linalg.norm(corrected, axis=1)
-        key = (int(np.count_nonzero(lengths >= _MOVED_PX)), round(float(lengths.sum()), 6), float(np.linalg.norm(t)))
+        key = (count, round(float(lengths.sum()), 6), float(np.linalg.norm(t)))
         if best is None or key < best[0]:
             best = (key, corrected, t)
     return best[1], best[2]
@@ -301,8 +316,10 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
         raise ReconstructionError(f"max_shift_px must be >= 1, got {max_shift_px!r}")
     rounds = max_rounds if max_rounds is not None else 2 * n
     half_edge = cube_half_edge_mm(projections)  # the lattice stays where the headers put it
+    fit_centrelines = n >= 3
+    level_plan = CALIBRATION_LEVELS[:-1] if fit_centrelines else CALIBRATION_LEVELS
     levels = [(_Level(projections, masks, half_edge, k, threshold_px), max(2, int(np.ceil(max_shift_px * f))))
-              for k, f in CALIBRATION_LEVELS]
+              for k, f in level_plan]
     coarse, coarse_window = levels[0]
     maps = coarse.support_maps(np.zeros((n, 2)), coarse_window)
     # The first move decides which views carry the correction; near-ties (e.g. two views that share
@@ -320,13 +337,18 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
         for index, (level, window) in enumerate(levels):
             needed = min_gain if index == 0 else 0.1 * min_gain
             _greedy(level, window, shifts, history, needed, rounds)
-        last = levels[-1][0]
-        _subpixel(last, shifts)
-        outcomes.append((last.coverage(shifts), shifts, history))
-    _, shifts, history = max(outcomes, key=lambda o: o[0])
-    level = levels[-1][0]
+        outcomes.append((shifts, history))
     jacobians = [_jacobian(p) for p in projections]
-    final, translation = _gauge(shifts, jacobians)
+    last = levels[-1][0]
+    if not fit_centrelines:
+        for shifts, _ in outcomes:
+            _subpixel(last, shifts)
+    shifts, history = max(outcomes, key=lambda o: last.coverage(o[0]))
+    final, _ = _gauge(shifts, jacobians)
+    if fit_centrelines:
+        final, _ = polish_shifts(projections, [Centreline(m) for m in masks], final)
+    final, translation = _gauge(final, jacobians)
+    level = _Level(projections, masks, half_edge, CALIBRATION_LEVELS[-1][0], threshold_px)
     return Calibration(
         shifts_px=tuple((float(a), float(b)) for a, b in final),
         gauge_translation_mm=tuple(float(x) for x in translation),
@@ -335,3 +357,4 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
         rounds=len(history),
         history=history,
     )
+
