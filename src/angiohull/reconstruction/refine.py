@@ -150,19 +150,34 @@ def _leaves_hull(p: np.ndarray, q: np.ndarray, hull: np.ndarray, to_local, step_
 def _rivals(axis_uv: np.ndarray, reach_px: np.ndarray, axis_points: np.ndarray, axis_piece: np.ndarray,
             tube_uv: np.ndarray, tube_points: np.ndarray, tube_piece: np.ndarray, hull: np.ndarray,
             to_local) -> tuple[np.ndarray, np.ndarray]:
-    """One view's rival pairs: (axis point index, piece of the rival hull point) for every hull point of
-    another piece that projects within the axis point's reach and is separated from it by a gap in
-    the hull. Duplicate pairs are kept (they do not change the outcome)."""
+    """One view's rivals: the pairs (axis point index, piece) such that a hull point of that other
+    piece projects within the axis point's reach and is separated from it by a gap in the hull.
+    Each pair once. (Per pair, the farthest such hull point is tried first: it is the one most likely
+    across a gap; the others only when it is not.)"""
     hits = cKDTree(tube_uv).query_ball_point(axis_uv, reach_px)
     counts = np.fromiter((len(h) for h in hits), dtype=np.int64, count=len(hits))
     if counts.sum() == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     axis_index = np.repeat(np.arange(len(axis_uv)), counts)
     tube_index = np.concatenate([np.asarray(h, dtype=np.int64) for h in hits])
-    other = tube_piece[tube_index] != axis_piece[axis_index]
-    axis_index, tube_index = axis_index[other], tube_index[other]
-    apart = _leaves_hull(axis_points[axis_index], tube_points[tube_index], hull, to_local)
-    return axis_index[apart], tube_piece[tube_index[apart]]
+    rival_piece = tube_piece[tube_index]
+    other = rival_piece != axis_piece[axis_index]
+    axis_index, tube_index, rival_piece = axis_index[other], tube_index[other], rival_piece[other]
+    if len(axis_index) == 0:
+        return axis_index, rival_piece
+    distance = np.linalg.norm(tube_points[tube_index] - axis_points[axis_index], axis=1)
+    order = np.lexsort((-distance, rival_piece, axis_index))
+    axis_index, tube_index, rival_piece = axis_index[order], tube_index[order], rival_piece[order]
+    group_start = np.r_[True, (np.diff(axis_index) != 0) | (np.diff(rival_piece) != 0)]
+    group = np.cumsum(group_start) - 1
+    first = np.flatnonzero(group_start)
+    apart = np.zeros(len(first), dtype=bool)
+    apart[:] = _leaves_hull(axis_points[axis_index[first]], tube_points[tube_index[first]], hull, to_local)
+    rest = np.flatnonzero(~group_start & ~apart[group])
+    if len(rest):
+        rest_apart = _leaves_hull(axis_points[axis_index[rest]], tube_points[tube_index[rest]], hull, to_local)
+        apart[group[rest[rest_apart]]] = True
+    return axis_index[first[apart]], rival_piece[first[apart]]
 
 
 def drop_explained_pieces(axis_piece: np.ndarray, rivals: Sequence[tuple[np.ndarray, np.ndarray]],
@@ -174,8 +189,8 @@ def drop_explained_pieces(axis_piece: np.ndarray, rivals: Sequence[tuple[np.ndar
     axis_piece : (A,) int array
         Piece index (0..m-1) of every axis point.
     rivals : sequence of pairs of (R,) int arrays, one per view
-        (axis point index, piece index of its rival): in that view, the axis point shares its viewing
-        ray with a hull point of that piece, across a gap in the hull.
+        (axis point index, piece index of its rival), each pair once: in that view, the axis point
+        shares its viewing ray with a hull point of that piece, across a gap in the hull.
     unique_fraction : float
         A piece is dropped when its score (the largest, over the views, fraction of its axis points
         with no rival among the kept pieces) is below this; 0 keeps every piece.
