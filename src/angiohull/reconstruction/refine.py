@@ -20,6 +20,33 @@ steps that stay interpretable:
    and the threshold's widening back to a tube. (A 3D skeleton of the hull would be the obvious
    axis, but scikit-image's 3D thinning can delete structures of even thickness entirely,
    scikit-image issue #3757.)
+4. **Explanation** (before the radius check; :func:`drop_explained_pieces`): where the cones of
+   branches that cross in projection meet, the hull keeps *phantom* pieces that project onto vessel
+   pixels, even onto the 2D centreline, in every view, so they carry axis points of their own. What
+   gives them away is that every one of their pixels is already explained by a real vessel: a
+   phantom piece lies, in every view, on viewing rays that also cross a true vessel elsewhere,
+   while a true vessel has at least one view in which it alone explains its pixels.
+
+   - *Pieces*: the axis points are split into connected pieces (26-neighbourhood on the lattice)
+     that project onto one and the same 2D centreline branch (the Guo–Hall centreline cut at its
+     junction pixels) in every view. A phantom piece attached to a true vessel follows other 2D
+     branches than the vessel does, so the split falls where it leaves the vessel, with no length
+     or size parameter.
+   - *Rivals*: in a view, an axis point has a rival when a hull point of another piece (within the
+     radius check's tube around that piece's axis points) projects within the axis point's reach
+     (the same tolerance that made it an axis point) and the straight segment between the two
+     leaves the hull: they sit on one viewing ray, in different objects. Two points of the same
+     vessel on one ray are joined through the vessel; this needs no distance threshold, so a vessel
+     whose radius is underestimated (e.g. under false-negative pixels) does not rival itself.
+   - *Greedy removal*: a piece's score is the largest, over the views, fraction of its axis points
+     without a rival among the pieces still kept. The piece with the lowest score is dropped while
+     that score is below ``unique_fraction`` (a half: most of the piece is explained by something
+     else in every view), and the scores of the pieces it rivalled are updated. Dropping the most
+     redundant piece first resolves a phantom and a true vessel that rival each other in one view:
+     the true vessel has another view of its own.
+
+   The radius check then uses the axis points of the kept pieces only, so the phantom's hull points,
+   farther than a radius from any true axis point, go too.
 """
 
 from __future__ import annotations
@@ -32,10 +59,13 @@ from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 from skimage.morphology import thin
 
+_EIGHT = np.ones((3, 3), dtype=bool)
+_TWENTY_SIX = np.ones((3, 3, 3), dtype=bool)
+
 from ..geometry import Projection
 from .cube import Lattice
 
-__all__ = ["RefineSettings", "REFINED", "clean_mask", "refine_hull"]
+__all__ = ["RefineSettings", "REFINED", "clean_mask", "refine_hull", "centreline_branches", "drop_explained_pieces"]
 
 
 @dataclass(frozen=True)
@@ -47,6 +77,10 @@ class RefineSettings:
     fill_neighbours: int = 5  # clean_mask: a background pixel with this many vessel neighbours is filled
     component_fraction: float = 0.05  # drop connected parts of the hull smaller than this fraction
     slack_cells: float = 0.5  # tolerance of the radius check, in lattice spacings
+    # explanation step: an axis piece is dropped when, in every view, less than this fraction of its
+    # axis points is free of rivals (hull points of other pieces on the same viewing ray, across a gap
+    # in the hull): a half = "mostly explained by something else in every view". 0 turns it off.
+    unique_fraction: float = 0.5
 
 
 REFINED = RefineSettings()
@@ -68,9 +102,143 @@ def clean_mask(mask: np.ndarray, min_neighbours: int = 2, fill_neighbours: int =
     return (mask & (neighbours >= min_neighbours)) | (~mask & (neighbours >= fill_neighbours))
 
 
+def centreline_branches(centreline: np.ndarray) -> np.ndarray:
+    """Label the branches of a 2D centreline (bool image): pixels between junctions.
+
+    A junction pixel has at least 3 centreline pixels among its 8 neighbours. The other centreline
+    pixels are labelled by 8-connected runs (1..n); each connected cluster of junction pixels gets a
+    label of its own (n+1...). Background is 0.
+    """
+    centreline = np.asarray(centreline, dtype=bool)
+    neighbours = ndi.convolve(centreline.astype(np.int32), _EIGHT.astype(np.int32), mode="constant") - 1
+    junction = centreline & (neighbours >= 3)
+    runs, n_runs = ndi.label(centreline & ~junction, structure=_EIGHT)
+    clusters, _ = ndi.label(junction, structure=_EIGHT)
+    return np.where(junction, clusters + n_runs, runs)
+
+
+def _axis_pieces(axis_local: np.ndarray, shape: tuple[int, ...], branch_per_view: Sequence[np.ndarray]) -> np.ndarray:
+    """Piece index (0..m-1) of every axis point: connected on the lattice (26-neighbourhood) and on
+    the same 2D centreline branch in every view. ``axis_local``: (A, 3) lattice indices in a volume of
+    ``shape``; ``branch_per_view``: (A,) branch labels per view."""
+    volume = np.zeros(shape, dtype=bool)
+    volume[tuple(axis_local.T)] = True
+    labels, _ = ndi.label(volume, structure=_TWENTY_SIX)
+    keys = np.stack([labels[tuple(axis_local.T)], *branch_per_view], axis=1)
+    _, piece = np.unique(keys, axis=0, return_inverse=True)
+    return piece.ravel()
+
+
+def _leaves_hull(p: np.ndarray, q: np.ndarray, hull: np.ndarray, to_local, step_cells: float = 0.5) -> np.ndarray:
+    """(K,) bool: the straight segment from p[k] to q[k] (mm) passes a lattice point outside ``hull``
+    (sampled every ``step_cells`` lattice spacings, each sample rounded to its nearest lattice point)."""
+    length_cells = np.linalg.norm(to_local(q, rounded=False) - to_local(p, rounded=False), axis=1)
+    steps = np.maximum(np.ceil(length_cells / step_cells).astype(np.int64), 1)
+    gap = np.zeros(len(p), dtype=bool)
+    for k in range(1, int(steps.max(initial=1))):
+        active = np.flatnonzero((k < steps) & ~gap)
+        if len(active) == 0:
+            break
+        t = (k / steps[active])[:, None]
+        local = to_local(p[active] + t * (q[active] - p[active]))
+        inside = np.all((local >= 0) & (local < hull.shape), axis=1)
+        inside[inside] = hull[tuple(local[inside].T)]
+        gap[active[~inside]] = True
+    return gap
+
+
+def _rivals(axis_uv: np.ndarray, reach_px: np.ndarray, axis_points: np.ndarray, axis_piece: np.ndarray,
+            tube_uv: np.ndarray, tube_points: np.ndarray, tube_piece: np.ndarray, hull: np.ndarray,
+            to_local) -> tuple[np.ndarray, np.ndarray]:
+    """One view's rivals: the pairs (axis point index, piece) such that a hull point of that other
+    piece projects within the axis point's reach and is separated from it by a gap in the hull.
+    Each pair once. (Per pair, the farthest such hull point is tried first: it is the one most likely
+    across a gap; the others only when it is not.)"""
+    hits = cKDTree(tube_uv).query_ball_point(axis_uv, reach_px)
+    counts = np.fromiter((len(h) for h in hits), dtype=np.int64, count=len(hits))
+    if counts.sum() == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    axis_index = np.repeat(np.arange(len(axis_uv)), counts)
+    tube_index = np.concatenate([np.asarray(h, dtype=np.int64) for h in hits])
+    rival_piece = tube_piece[tube_index]
+    other = rival_piece != axis_piece[axis_index]
+    axis_index, tube_index, rival_piece = axis_index[other], tube_index[other], rival_piece[other]
+    if len(axis_index) == 0:
+        return axis_index, rival_piece
+    distance = np.linalg.norm(tube_points[tube_index] - axis_points[axis_index], axis=1)
+    order = np.lexsort((-distance, rival_piece, axis_index))
+    axis_index, tube_index, rival_piece = axis_index[order], tube_index[order], rival_piece[order]
+    group_start = np.r_[True, (np.diff(axis_index) != 0) | (np.diff(rival_piece) != 0)]
+    group = np.cumsum(group_start) - 1
+    first = np.flatnonzero(group_start)
+    apart = np.zeros(len(first), dtype=bool)
+    apart[:] = _leaves_hull(axis_points[axis_index[first]], tube_points[tube_index[first]], hull, to_local)
+    rest = np.flatnonzero(~group_start & ~apart[group])
+    if len(rest):
+        rest_apart = _leaves_hull(axis_points[axis_index[rest]], tube_points[tube_index[rest]], hull, to_local)
+        apart[group[rest[rest_apart]]] = True
+    return axis_index[first[apart]], rival_piece[first[apart]]
+
+
+def drop_explained_pieces(axis_piece: np.ndarray, rivals: Sequence[tuple[np.ndarray, np.ndarray]],
+                          unique_fraction: float) -> np.ndarray:
+    """Greedy explanation test on axis pieces (see the module notes, step 4).
+
+    Parameters
+    ----------
+    axis_piece : (A,) int array
+        Piece index (0..m-1) of every axis point.
+    rivals : sequence of pairs of (R,) int arrays, one per view
+        (axis point index, piece index of its rival), each pair once: in that view, the axis point
+        shares its viewing ray with a hull point of that piece, across a gap in the hull.
+    unique_fraction : float
+        A piece is dropped when its score (the largest, over the views, fraction of its axis points
+        with no rival among the kept pieces) is below this; 0 keeps every piece.
+
+    Returns
+    -------
+    kept : (m,) bool array
+        The pieces kept. Pieces are dropped one at a time, the lowest score first.
+    """
+    n_pieces = int(axis_piece.max()) + 1 if len(axis_piece) else 0
+    size = np.bincount(axis_piece, minlength=n_pieces).astype(np.float64)
+    kept = np.ones(n_pieces, dtype=bool)
+    if n_pieces == 0 or not rivals:
+        return kept
+    rival_count, by_rival = [], []
+    for axis_index, rival_piece in rivals:
+        rival_count.append(np.bincount(axis_index, minlength=len(axis_piece)))
+        order = np.argsort(rival_piece, kind="stable")
+        bounds = np.searchsorted(rival_piece[order], np.arange(n_pieces + 1))
+        by_rival.append((axis_index[order], bounds))
+
+    def score(pieces_mask: np.ndarray) -> np.ndarray:
+        free = [np.bincount(axis_piece[pieces_mask], weights=(c == 0)[pieces_mask], minlength=n_pieces)
+                for c in rival_count]
+        return np.max(free, axis=0) / np.maximum(size, 1.0)
+
+    scores = score(np.ones(len(axis_piece), dtype=bool))
+    while True:
+        worst = int(np.argmin(np.where(kept, scores, np.inf)))
+        if not kept[worst] or scores[worst] >= unique_fraction:
+            return kept
+        kept[worst] = False
+        freed = []
+        for count, (axis_index, bounds) in zip(rival_count, by_rival):
+            hit = axis_index[bounds[worst]:bounds[worst + 1]]
+            np.subtract.at(count, hit, 1)
+            freed.append(hit)
+        touched = np.zeros(n_pieces, dtype=bool)
+        touched[axis_piece[np.concatenate(freed)]] = True
+        touched &= kept
+        if touched.any():
+            scores[touched] = score(touched[axis_piece])[touched]
+
+
 def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Projection],
                 masks: Sequence[np.ndarray], settings: RefineSettings = REFINED) -> tuple[np.ndarray, dict]:
-    """Connectivity and radius consistency applied to carved lattice points (see the module notes).
+    """Connectivity, explanation and radius consistency applied to carved lattice points (see the
+    module notes).
 
     Parameters
     ----------
@@ -86,26 +254,34 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
     points : (M, 3) array
         The refined points, a subset of ``points_mm`` in the same order.
     info : dict
-        Counts removed by each step.
+        Counts removed by each step (``pieces_removed``: axis pieces dropped by the explanation step).
     """
+    info = {"components_removed": 0, "pieces_removed": 0, "radius_removed": 0}
     if len(points_mm) == 0:
-        return points_mm, {"components_removed": 0, "radius_removed": 0}
+        return points_mm, info
     h = lattice.spacing_mm
     ijk = np.round((points_mm + lattice.half_edge_mm) / h).astype(np.int64)
     low = ijk.min(axis=0) - 2
     local = ijk - low
     volume = np.zeros(tuple(local.max(axis=0) + 3), dtype=bool)
     volume[tuple(local.T)] = True
+
+    def to_local(mm: np.ndarray, rounded: bool = True) -> np.ndarray:
+        index = (mm + lattice.half_edge_mm) / h
+        return np.round(index).astype(np.int64) - low if rounded else index
+
     # 2. connectivity
-    labels, _ = ndi.label(volume, structure=np.ones((3, 3, 3)))
+    labels, _ = ndi.label(volume, structure=_TWENTY_SIX)
     sizes = np.bincount(labels.ravel())
     sizes[0] = 0
     big = sizes[labels[tuple(local.T)]] >= settings.component_fraction * len(points_mm)
-    # 3. radius consistency. Axis points: hull points whose projection lies on (within a lattice
-    # cell of) the 2D centreline in every view; each gets the smallest radius the views show there.
+    info["components_removed"] = int((~big).sum())
+    # 3. axis points: hull points whose projection lies on (within a lattice cell of) the 2D
+    # centreline in every view; each gets the smallest radius the views show there.
     candidates = points_mm[big]
     near_axis = np.ones(len(candidates), dtype=bool)
     radius = np.full(len(candidates), np.inf)
+    views = []
     for projection, mask in zip(projections, masks):
         mask = np.asarray(mask, dtype=bool)
         inside = ndi.distance_transform_edt(mask)
@@ -119,13 +295,36 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
         near_axis &= off_centre[rows, cols] <= reach_px
         # half-width at the nearest centreline pixel; the distance to the nearest background pixel
         # centre overshoots the edge (half-way between pixel centres) by 0.5 px
-        half_width = inside[nearest[0, rows, cols], nearest[1, rows, cols]] - 0.5
+        centre_rows, centre_cols = nearest[0, rows, cols], nearest[1, rows, cols]
+        half_width = inside[centre_rows, centre_cols] - 0.5
         radius = np.minimum(radius, half_width / px_per_mm)
+        views.append((uv, reach_px, centreline, centre_rows, centre_cols))
     if not near_axis.any():
-        return points_mm[big], {"components_removed": int((~big).sum()), "radius_removed": 0}
-    axis_points = candidates[near_axis]
-    distance, owner = cKDTree(axis_points).query(candidates)
-    within = distance <= radius[near_axis][owner] + settings.slack_cells * h
+        return candidates, info
+    axis = np.flatnonzero(near_axis)
+    distance, owner = cKDTree(candidates[axis]).query(candidates)
+    in_tube = distance <= radius[axis][owner] + settings.slack_cells * h
+    # 4. explanation: drop axis pieces whose pixels other pieces explain in every view
+    if settings.unique_fraction > 0:
+        piece = _axis_pieces(local[big][axis], volume.shape,
+                             [centreline_branches(c)[r[axis], k[axis]] for _, _, c, r, k in views])
+        tube = np.flatnonzero(in_tube)
+        tube_piece = piece[owner[tube]]
+        hull = np.zeros_like(volume)
+        hull[tuple(local[big].T)] = True
+        rivals = [_rivals(uv[axis], reach[axis], candidates[axis], piece, uv[tube], candidates[tube], tube_piece,
+                          hull, to_local) for uv, reach, *_ in views]
+        kept = drop_explained_pieces(piece, rivals, settings.unique_fraction)
+        info["pieces_removed"] = int((~kept).sum())
+        if not kept.all():
+            axis = axis[kept[piece]]
+            if len(axis) == 0:
+                info["radius_removed"] = len(candidates)
+                return candidates[:0], info
+            distance, owner = cKDTree(candidates[axis]).query(candidates)
+            in_tube = distance <= radius[axis][owner] + settings.slack_cells * h
+    # radius consistency: keep hull points within the radius of their nearest (kept) axis point
     keep = np.zeros(len(points_mm), dtype=bool)
-    keep[np.flatnonzero(big)[within]] = True
-    return points_mm[keep], {"components_removed": int((~big).sum()), "radius_removed": int((~within).sum())}
+    keep[np.flatnonzero(big)[in_tube]] = True
+    info["radius_removed"] = int((~in_tube).sum())
+    return points_mm[keep], info
