@@ -59,9 +59,6 @@ from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 from skimage.morphology import thin
 
-_EIGHT = np.ones((3, 3), dtype=bool)
-_TWENTY_SIX = np.ones((3, 3, 3), dtype=bool)
-
 from ..geometry import Projection
 from .cube import Lattice
 
@@ -82,6 +79,9 @@ class RefineSettings:
     # in the hull): a half = "mostly explained by something else in every view". 0 turns it off.
     unique_fraction: float = 0.5
 
+
+_EIGHT = np.ones((3, 3), dtype=bool)  # 8-neighbourhood in 2D
+_TWENTY_SIX = np.ones((3, 3, 3), dtype=bool)  # 26-neighbourhood on the lattice
 
 REFINED = RefineSettings()
 """The settings of ``preset="refined"`` (the same for every case; measured in docs/beyond-the-paper.md)."""
