@@ -65,7 +65,7 @@ def test_polish_brings_a_view_back_to_within_half_a_pixel():
     truth = np.array([1.6, -2.3])
     masks = [_tube_mask(p, curve, 1.2) for p in projections[:2]]
     masks.append(_tube_mask(projections[2].shifted(*truth), curve, 1.2))
-    shifts, _ = polish_shifts(projections, [Centreline(m) for m in masks], np.zeros((3, 2)))
+    shifts = polish_shifts(projections, [Centreline(m) for m in masks], np.zeros((3, 2)))
     # The shifts are fixed up to a common 3D translation t (every view moved by J_v t, J_v the
     # Jacobian at the isocentre): compare after removing the t that best explains the difference.
     error = shifts - np.array([[0.0, 0.0], [0.0, 0.0], truth])

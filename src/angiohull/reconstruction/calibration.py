@@ -245,9 +245,9 @@ def _parabolic(values: np.ndarray, index: int) -> float:
     return float(np.clip(0.5 * (left - right) / denominator, -0.5, 0.5)) if denominator < 0 else 0.0
 
 
-def _gauge_alternatives(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> list[tuple[int, np.ndarray, np.ndarray]]:
-    """The corrections equivalent to ``shifts`` up to a common 3D translation (to first order), as
-    ``(views moved by at least _MOVED_PX, corrected shifts, translation)``.
+def _gauge(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Of the corrections equivalent up to a common 3D translation, the one that moves the fewest
+    views (corrections of at least _MOVED_PX), then the shortest in total.
 
     Candidates: no translation, and for every view and every pair of views the translation that
     (in the least-squares sense) leaves them unmoved.
@@ -259,21 +259,11 @@ def _gauge_alternatives(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> 
         for w in range(v + 1, n):
             a = np.vstack([jacobians[v], jacobians[w]])
             candidates.append(np.linalg.lstsq(a, np.concatenate([shifts[v], shifts[w]]), rcond=None)[0])
-    out = []
+    best = None
     for t in candidates:
         corrected = shifts - np.stack([j @ t for j in jacobians])
-        out.append((int(np.count_nonzero(np.linalg.norm(corrected, axis=1) >= _MOVED_PX)), corrected, t))
-    return out
-
-
-def _gauge(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Of the corrections equivalent up to a common 3D translation, the one that moves the fewest
-    views (corrections of at least _MOVED_PX), then the shortest in total (candidates: see
-    :func:`_gauge_alternatives`)."""
-    best = None
-    for count, corrected, t in _gauge_alternatives(shifts, jacobians):
         lengths = np.linalg.norm(corrected, axis=1)
-        key = (count, round(float(lengths.sum()), 6), float(np.linalg.norm(t)))
+        key = (int(np.count_nonzero(lengths >= _MOVED_PX)), round(float(lengths.sum()), 6), float(np.linalg.norm(t)))
         if best is None or key < best[0]:
             best = (key, corrected, t)
     return best[1], best[2]
@@ -346,9 +336,10 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
     shifts, history = max(outcomes, key=lambda o: last.coverage(o[0]))
     final, _ = _gauge(shifts, jacobians)
     if fit_centrelines:
-        final, _ = polish_shifts(projections, [Centreline(m) for m in masks], final)
+        final = polish_shifts(projections, [Centreline(m) for m in masks], final)
     final, translation = _gauge(final, jacobians)
-    level = _Level(projections, masks, half_edge, CALIBRATION_LEVELS[-1][0], threshold_px)
+    finest = CALIBRATION_LEVELS[-1][0]
+    level = last if last.lattice.resolution == finest else _Level(projections, masks, half_edge, finest, threshold_px)
     return Calibration(
         shifts_px=tuple((float(a), float(b)) for a, b in final),
         gauge_translation_mm=tuple(float(x) for x in translation),
@@ -357,4 +348,3 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
         rounds=len(history),
         history=history,
     )
-

@@ -27,9 +27,8 @@ uses that:
    others with their current shifts), until no view moves by more than 0.05 px.
 
 A common 3D translation of the object shifts all views consistently and leaves the cost unchanged
-to first order; only the change of magnification with depth (about 0.1 % per mm at a source
-distance of 800 mm) tells such alternatives apart, and :func:`consistency_cost` is what
-:mod:`.calibration` compares them by.
+to first order (only the magnification changes, about 0.1 % per mm at a source distance of
+800 mm): the sweeps do not fix it, and :mod:`.calibration` chooses it afterwards (its gauge step).
 """
 
 from __future__ import annotations
@@ -44,7 +43,7 @@ from skimage.morphology import thin
 
 from ..geometry import Projection
 
-__all__ = ["Centreline", "match_pair", "fit_view_shift", "consistency_cost", "polish_shifts", "PAIRS_PER_VIEW"]
+__all__ = ["Centreline", "match_pair", "fit_view_shift", "polish_shifts", "PAIRS_PER_VIEW"]
 
 RADIUS_TOLERANCE = 0.3
 """Two matched centreline pixels must show the same vessel radius (mm, at the triangulated point)
@@ -113,8 +112,7 @@ def match_pair(projection_i: Projection, projection_j: Projection, centre_line_i
     phi_j = pencil.angle(d_j)
     # angular size of one pixel, from unit steps in u and v
     pixel_angle = []
-    for projection, uv, directions in ((projection_i, centre_line_i.uv_px, d_i), (projection_j, centre_line_j.uv_px, d_j)):
-        phi = pencil.angle(directions)
+    for projection, uv, phi in ((projection_i, centre_line_i.uv_px, phi_i), (projection_j, centre_line_j.uv_px, phi_j)):
         steps = [np.angle(np.exp(1j * (pencil.angle(_ray_directions(projection, uv + step)) - phi)))
                  for step in ((1.0, 0.0), (0.0, 1.0))]
         pixel_angle.append(float(np.median(np.hypot(*steps))))
@@ -169,16 +167,14 @@ def fit_view_shift(centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarr
     if centre_line.tree is None or len(uv_px) == 0 or np.sum(weights) <= 0:
         return start, float(cutoff_px ** 2)
 
-    def objective(shift):
-        return _cost(centre_line, uv_px, weights, shift, cutoff_px)
-
     offsets = np.arange(-reach_px, reach_px + 1, dtype=float)
     grid = [start + (du, dv) for du in offsets for dv in offsets]
-    best = grid[int(np.argmin([objective(g) for g in grid]))]
-    for step in (0.5, 0.25, 0.1, 0.05):
+    for step in (0.5, 0.25, 0.1, 0.05, None):
+        costs = [_cost(centre_line, uv_px, weights, g, cutoff_px) for g in grid]
+        best = grid[int(np.argmin(costs))]
+        if step is None:
+            return best, min(costs)
         grid = [best + (du * step, dv * step) for du in (-1, 0, 1) for dv in (-1, 0, 1)]
-        best = grid[int(np.argmin([objective(g) for g in grid]))]
-    return best, _cost(centre_line, uv_px, weights, best, cutoff_px)
 
 
 def _view_direction(projection: Projection) -> np.ndarray:
@@ -213,26 +209,12 @@ def _triangulated_for(view: int, projections: Sequence[Projection], centre_lines
     return np.concatenate([x for x, _ in parts]), np.concatenate([w for _, w in parts])
 
 
-def consistency_cost(projections: Sequence[Projection], centre_lines: Sequence[Centreline], shifts_px,
-                     cutoff_px: float = 2.0) -> float:
-    """Sum over views of the fit cost at the given shifts (lower: the views agree better)."""
-    shifts_px = np.asarray(shifts_px, dtype=float)
-    total = 0.0
-    for v, projection in enumerate(projections):
-        points, weights = _triangulated_for(v, projections, centre_lines, shifts_px)
-        if len(points) == 0 or centre_lines[v].tree is None:
-            total += cutoff_px ** 2
-            continue
-        total += _cost(centre_lines[v], projection.project(points), weights, shifts_px[v], cutoff_px)
-    return total
-
-
 def polish_shifts(projections: Sequence[Projection], centre_lines: Sequence[Centreline], shifts_px, *,
                   reach_px: int = 3, cutoff_px: float = 2.0, max_sweeps: int = 6,
-                  tolerance_px: float = 0.05) -> tuple[np.ndarray, float]:
+                  tolerance_px: float = 0.05) -> np.ndarray:
     """Refine every view's shift against the others' triangulated centrelines (see the module notes).
 
-    Needs at least three views. Returns ``(shifts (N, 2), consistency cost)``.
+    Needs at least three views. Returns the shifts, (N, 2).
     """
     shifts = np.array(shifts_px, dtype=float)
     if len(projections) < 3:
@@ -247,4 +229,4 @@ def polish_shifts(projections: Sequence[Projection], centre_lines: Sequence[Cent
             shifts[v] = new
         if moved <= tolerance_px:
             break
-    return shifts, consistency_cost(projections, centre_lines, shifts, cutoff_px)
+    return shifts

@@ -171,8 +171,7 @@ def _rivals(axis_uv: np.ndarray, reach_px: np.ndarray, axis_points: np.ndarray, 
     group_start = np.r_[True, (np.diff(axis_index) != 0) | (np.diff(rival_piece) != 0)]
     group = np.cumsum(group_start) - 1
     first = np.flatnonzero(group_start)
-    apart = np.zeros(len(first), dtype=bool)
-    apart[:] = _leaves_hull(axis_points[axis_index[first]], tube_points[tube_index[first]], hull, to_local)
+    apart = _leaves_hull(axis_points[axis_index[first]], tube_points[tube_index[first]], hull, to_local)
     rest = np.flatnonzero(~group_start & ~apart[group])
     if len(rest):
         rest_apart = _leaves_hull(axis_points[axis_index[rest]], tube_points[tube_index[rest]], hull, to_local)
@@ -301,9 +300,14 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
         views.append((uv, reach_px, centreline, centre_rows, centre_cols))
     if not near_axis.any():
         return candidates, info
+
+    def radius_tube(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(nearest axis point, within its radius + slack) of every candidate."""
+        distance, owner = cKDTree(candidates[axis]).query(candidates)
+        return owner, distance <= radius[axis][owner] + settings.slack_cells * h
+
     axis = np.flatnonzero(near_axis)
-    distance, owner = cKDTree(candidates[axis]).query(candidates)
-    in_tube = distance <= radius[axis][owner] + settings.slack_cells * h
+    owner, in_tube = radius_tube(axis)
     # 4. explanation: drop axis pieces whose pixels other pieces explain in every view
     if settings.unique_fraction > 0:
         piece = _axis_pieces(local[big][axis], volume.shape,
@@ -321,8 +325,7 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
             if len(axis) == 0:
                 info["radius_removed"] = len(candidates)
                 return candidates[:0], info
-            distance, owner = cKDTree(candidates[axis]).query(candidates)
-            in_tube = distance <= radius[axis][owner] + settings.slack_cells * h
+            _, in_tube = radius_tube(axis)
     # radius consistency: keep hull points within the radius of their nearest (kept) axis point
     keep = np.zeros(len(points_mm), dtype=bool)
     keep[np.flatnonzero(big)[in_tube]] = True
