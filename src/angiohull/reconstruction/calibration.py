@@ -78,7 +78,7 @@ class Calibration:
     """Estimated per-view image shifts and how well the views agree before and after."""
 
     shifts_px: tuple[tuple[float, float], ...]  # (du, dv) per view, in the order given, after the gauge
-    gauge_translation_mm: tuple[float, float, float]  # 3D translation the gauge step moved the object by
+    gauge_translation_mm: tuple[float, float, float]  # 3D translation the gauge steps (before and after the fit) moved the object by, in total
     coverage_before: tuple[float, ...]  # per view: fraction of its mask the hull of all views covers, uncorrected
     coverage_after: tuple[float, ...]  # the same with the corrections (finest level, the reconstruction's threshold)
     rounds: int  # greedy rounds that changed a view, over all levels
@@ -334,10 +334,11 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
         for shifts, _ in outcomes:
             _subpixel(last, shifts)
     shifts, history = max(outcomes, key=lambda o: last.coverage(o[0]))
-    final, _ = _gauge(shifts, jacobians)
+    final, translation = _gauge(shifts, jacobians)
     if fit_centrelines:
         final = polish_shifts(projections, [Centreline(m) for m in masks], final)
-    final, translation = _gauge(final, jacobians)
+    final, further = _gauge(final, jacobians)  # again, after the fit; the object moved by both
+    translation = translation + further
     finest = CALIBRATION_LEVELS[-1][0]
     level = last if last.lattice.resolution == finest else _Level(projections, masks, half_edge, finest, threshold_px)
     return Calibration(
