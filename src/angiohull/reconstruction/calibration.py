@@ -78,7 +78,7 @@ class Calibration:
     """Estimated per-view image shifts and how well the views agree before and after."""
 
     shifts_px: tuple[tuple[float, float], ...]  # (du, dv) per view, in the order given, after the gauge
-    gauge_translation_mm: tuple[float, float, float]  # 3D translation the gauge steps (before and after the fit) moved the object by, in total
+    gauge_translation_mm: tuple[float, float, float]  # 3D translation the gauge steps moved the object by, in total
     coverage_before: tuple[float, ...]  # per view: fraction of its mask the hull of all views covers, uncorrected
     coverage_after: tuple[float, ...]  # the same with the corrections (finest level, the reconstruction's threshold)
     rounds: int  # greedy rounds that changed a view, over all levels
