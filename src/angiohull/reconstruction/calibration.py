@@ -92,7 +92,8 @@ class Calibration:
     def to_dict(self, names: Sequence[str] | None = None) -> dict:
         names = list(names) if names is not None else [f"view{i}" for i in range(len(self.shifts_px))]
         return {
-            "method": "greedy leave-one-out support maximisation, coarse to fine, then a fit to the other views' triangulated centrelines; gauge: fewest views moved, then least total shift",
+            "method": ("greedy leave-one-out support maximisation, coarse to fine, then a fit to the other views' "
+                       "triangulated centrelines; gauge: fewest views moved, then least total shift"),
             "shifts_px": {n: {"du": s[0], "dv": s[1]} for n, s in zip(names, self.shifts_px)},
             "gauge_translation_mm": list(self.gauge_translation_mm),
             "coverage_before": dict(zip(names, self.coverage_before)),
