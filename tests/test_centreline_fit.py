@@ -28,6 +28,24 @@ def _tube_mask(projection, centre_mm, radius_mm, shape=(512, 512)):
     return mask
 
 
+def test_centreline_is_the_midpoint_of_the_edges_not_the_thinned_pixel():
+    # even width: thinning keeps row 12 or 13, the vessel's middle is 12.5 (pixel-centre convention)
+    for rows, middle in ((slice(10, 16), 12.5), (slice(10, 17), 13.0)):
+        mask = np.zeros((40, 60), dtype=bool)
+        mask[rows, 5:55] = True
+        uv = Centreline(mask).uv_px
+        inner = (uv[:, 0] > 12) & (uv[:, 0] < 48)
+        np.testing.assert_allclose(uv[inner, 1], middle, atol=1e-9)
+    # oblique bands: signed distance of the centreline from the band's axis, unbiased on average
+    rows, cols = np.indices((80, 80))
+    for slope in (0.3, 0.6, 1.7):
+        norm = np.hypot(1.0, slope)
+        uv = Centreline(np.abs(rows - slope * cols - 10.0) / norm < 3.2).uv_px
+        distance = (uv[:, 1] - slope * uv[:, 0] - 10.0) / norm
+        inner = (uv[:, 0] > 15) & (uv[:, 0] < 40)
+        assert abs(distance[inner].mean()) < 0.1 and np.abs(distance[inner]).max() <= 1.0
+
+
 def _curve():
     s = np.linspace(0.0, 1.0, 400)
     return np.column_stack([30 * np.cos(3 * s) - 5, 25 * np.sin(4 * s), 40 * s - 20])

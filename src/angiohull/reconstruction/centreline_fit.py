@@ -6,8 +6,10 @@ is wide: the score is flat over a pixel or two and leans towards the phantom vol
 tubes, and a tube's axis projects onto the centreline of its silhouette in every view. This module
 uses that:
 
-1. **Centrelines.** Each mask is thinned (Guo–Hall, ``skimage.morphology.thin``); its pixels are
-   the 2D centreline.
+1. **Centrelines.** Each mask is thinned (Guo–Hall, ``skimage.morphology.thin``). Thinning keeps
+   one of the two middle pixels of an even-width vessel, a half-pixel bias whose direction depends
+   on the vessel's and so differs between views; each centreline pixel is therefore moved along its
+   normal to the midpoint of the mask's two edges.
 2. **Epipolar matching.** For two views ``i`` and ``j`` with camera centres ``C_i`` and ``C_j``,
    every back-projected ray lies in one plane of the pencil around the baseline ``C_i C_j``;
    a 3D point projects into both views on rays of the *same* plane. Each centreline pixel gets the
@@ -49,6 +51,13 @@ RADIUS_TOLERANCE = 0.3
 """Two matched centreline pixels must show the same vessel radius (mm, at the triangulated point)
 within this fraction plus one pixel: silhouettes of different vessels rarely do."""
 
+NORMAL_RADIUS_PX = 3
+"""A centreline pixel's normal is fitted to the centreline pixels within this radius."""
+
+MAX_CENTRING_PX = 1.0
+"""The largest move of a centreline pixel to the midpoint of its vessel's edges (thinning is off by
+at most half a pixel on a clean mask; more means the profile ran into a junction)."""
+
 PAIRS_PER_VIEW = 3
 """With more than three views, a view is fitted to the points of this many pairs of other views
 (the best-conditioned ones), so that the work grows linearly with the number of views."""
@@ -59,12 +68,68 @@ class Centreline:
 
     def __init__(self, mask: np.ndarray):
         mask = np.asarray(mask, dtype=bool)
-        rows, cols = np.nonzero(thin(mask))
-        self.uv_px = np.column_stack([cols, rows]).astype(float)
+        skeleton = thin(mask)
+        rows, cols = np.nonzero(skeleton)
+        pixels = np.column_stack([cols, rows]).astype(float)
         # half-width of the vessel at each centreline pixel: the distance to the nearest background
         # pixel centre overshoots the edge (half-way between pixel centres) by 0.5 px
         self.half_width_px = ndi.distance_transform_edt(mask)[rows, cols] - 0.5
+        self.uv_px = pixels + _centring_offsets(mask, skeleton, pixels, self.half_width_px)
         self.tree = cKDTree(self.uv_px) if len(self.uv_px) else None
+
+
+def _skeleton_normals(skeleton: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """Unit normal of the centreline at each pixel (zero where it has too few neighbours): the
+    minor axis of the scatter of skeleton pixels within NORMAL_RADIUS_PX."""
+    r = NORMAL_RADIUS_PX
+    dy, dx = np.mgrid[-r:r + 1, -r:r + 1].astype(float)
+    disc = (dx ** 2 + dy ** 2 <= r * r).astype(float)
+    image = skeleton.astype(float)
+    rows, cols = pixels[:, 1].astype(int), pixels[:, 0].astype(int)
+    moments = {key: ndi.correlate(image, disc * kernel, mode="constant")[rows, cols]
+               for key, kernel in (("n", 1.0), ("x", dx), ("y", dy), ("xx", dx * dx), ("xy", dx * dy), ("yy", dy * dy))}
+    n = moments["n"]
+    cxx = moments["xx"] / n - (moments["x"] / n) ** 2
+    cyy = moments["yy"] / n - (moments["y"] / n) ** 2
+    cxy = moments["xy"] / n - moments["x"] * moments["y"] / n ** 2
+    along = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # direction of the major axis
+    normals = np.column_stack([-np.sin(along), np.cos(along)])
+    normals[n < 3] = 0.0
+    return normals
+
+
+def _centring_offsets(mask: np.ndarray, skeleton: np.ndarray, pixels: np.ndarray,
+                      half_width_px: np.ndarray) -> np.ndarray:
+    """Per centreline pixel, the move along its normal to the midpoint of the mask's two edges.
+
+    Thinning keeps one of the two middle pixels of an even-width vessel, a half-pixel bias that
+    depends on the vessel's direction (and so differs between views). The mask is sampled along
+    the normal (nearest pixel, steps of 0.2 px) and the run of vessel pixels through the
+    centreline pixel gives the two edges; the move is limited to MAX_CENTRING_PX.
+    """
+    if len(pixels) == 0:
+        return np.zeros((0, 2))
+    normals = _skeleton_normals(skeleton, pixels)
+    reach = float(np.ceil(np.max(half_width_px))) + 2.0
+    step = 0.2  # no sample falls on a pixel edge (half-integer offsets) of a row or column
+    t = np.arange(-reach, reach + step / 2, step)
+    centre = len(t) // 2
+    samples = pixels[:, None, :] + t[None, :, None] * normals[:, None, :]
+    iu = np.floor(samples[..., 0] + 0.5).astype(np.int64)
+    iv = np.floor(samples[..., 1] + 0.5).astype(np.int64)
+    rows, cols = mask.shape
+    valid = (iu >= 0) & (iu < cols) & (iv >= 0) & (iv < rows)
+    inside = np.zeros(iu.shape, dtype=bool)
+    inside[valid] = mask[iv[valid], iu[valid]]
+    # first sample outside the vessel on either side (the run through the centre; none: the reach)
+    outside_right = ~inside[:, centre:]
+    outside_left = ~inside[:, centre::-1]
+    right = np.where(outside_right.any(axis=1), np.argmax(outside_right, axis=1), outside_right.shape[1])
+    left = np.where(outside_left.any(axis=1), np.argmax(outside_left, axis=1), outside_left.shape[1])
+    # the edge lies half a step before the first outside sample on each side
+    move = 0.5 * ((right - 0.5) - (left - 0.5)) * step
+    move = np.clip(move, -MAX_CENTRING_PX, MAX_CENTRING_PX)
+    return move[:, None] * normals
 
 
 def _ray_directions(projection: Projection, uv_px: np.ndarray) -> np.ndarray:
