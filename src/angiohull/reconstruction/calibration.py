@@ -32,10 +32,16 @@ that maximises that agreement:
    but where the object sits (``J_v t`` with ``J_v`` the Jacobian of view ``v`` at the isocentre).
    Of the equivalent corrections, the one that moves the fewest views by a pixel or more, then the
    shortest in total, is reported (candidates: no translation, and the translations that leave
-   one view or a pair of views unmoved). Views that share an image axis (e.g. RAO 30 CRA 30 and
-   RAO 30 CAU 30 share their columns; the paper's perpendicular views share one axis pairwise)
-   leave a shift along that axis nearly undetermined: moving either view, with the object
-   translated, explains the masks equally well, and the calibration returns one of the two.
+   one view or a pair of views unmoved); its translation is then refitted by least squares to all
+   the views it leaves unmoved, so that the answer does not depend on where the estimate started
+   and their small leftovers show the views' own disagreement.
+6. **Ties** (three views or more). Views that share an image axis (the paper's perpendicular views
+   share one axis pairwise) leave a shift along that axis nearly undetermined: moving either view,
+   with the object translated, explains the masks about equally well, and the gauge sees a near-tie
+   (as many views moved, in total within ``_TIE_PX``). The translation between the alternatives
+   changes the object's depth in the other views, and so its magnification there (about 0.6 % for
+   20 px): each alternative is refitted to the centrelines and the one whose views agree best
+   (:func:`.centreline_fit.consistency_cost`) is kept.
 
 A view's correction is applied as ``P' = T(du, dv) P`` (``T`` shifts pixel coordinates), so the
 returned shifts are what was done to the masks: a mask whose content moved by ``(+20, 0)`` px
@@ -54,7 +60,7 @@ from scipy.signal import fftconvolve
 from ..errors import ReconstructionError
 from ..geometry import Projection, cube_half_edge_mm
 from .cube import Lattice
-from .centreline_fit import Centreline, polish_shifts
+from .centreline_fit import Centreline, consistency_cost, polish_shifts
 from .engines import ENGINES
 
 __all__ = ["Calibration", "calibrate_shifts", "shift_projection", "CALIBRATION_LEVELS"]
@@ -65,6 +71,7 @@ the last one is used only with two views (with more, the centreline fit replaces
 
 
 _MOVED_PX = 1.0  # a view whose correction is shorter than this counts as unmoved (gauge choice)
+_TIE_PX = 2.0  # gauge alternatives moving as many views and at most this much longer in total are near-ties
 _MIN_COVERAGE_GAIN = 0.001  # a move must raise the mean mask coverage by more than this
 
 
@@ -93,7 +100,8 @@ class Calibration:
         names = list(names) if names is not None else [f"view{i}" for i in range(len(self.shifts_px))]
         return {
             "method": ("greedy leave-one-out support maximisation, coarse to fine, then a fit to the other views' "
-                       "triangulated centrelines; gauge: fewest views moved, then least total shift"),
+                       "triangulated centrelines; gauge: fewest views moved, then least total shift; near-ties: "
+                       "the alternative whose centrelines agree best"),
             "shifts_px": {n: {"du": s[0], "dv": s[1]} for n, s in zip(names, self.shifts_px)},
             "gauge_translation_mm": list(self.gauge_translation_mm),
             "coverage_before": dict(zip(names, self.coverage_before)),
@@ -246,28 +254,86 @@ def _parabolic(values: np.ndarray, index: int) -> float:
     return float(np.clip(0.5 * (left - right) / denominator, -0.5, 0.5)) if denominator < 0 else 0.0
 
 
-def _gauge(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Of the corrections equivalent up to a common 3D translation, the one that moves the fewest
-    views (corrections of at least _MOVED_PX), then the shortest in total.
+def _gauge_candidates(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> list[tuple[tuple, np.ndarray, np.ndarray]]:
+    """The corrections equivalent to ``shifts`` up to a common 3D translation ``t``, as
+    ``(key, corrected shifts, t)`` with key = (views moved by _MOVED_PX or more, total shift, |t|).
 
     Candidates: no translation, and for every view and every pair of views the translation that
     (in the least-squares sense) leaves them unmoved.
     """
     n = len(jacobians)
-    candidates = [np.zeros(3)]
+    translations = [np.zeros(3)]
     for v in range(n):
-        candidates.append(np.linalg.pinv(jacobians[v]) @ shifts[v])
+        translations.append(np.linalg.pinv(jacobians[v]) @ shifts[v])
         for w in range(v + 1, n):
             a = np.vstack([jacobians[v], jacobians[w]])
-            candidates.append(np.linalg.lstsq(a, np.concatenate([shifts[v], shifts[w]]), rcond=None)[0])
-    best = None
-    for t in candidates:
+            translations.append(np.linalg.lstsq(a, np.concatenate([shifts[v], shifts[w]]), rcond=None)[0])
+    out = []
+    for t in translations:
         corrected = shifts - np.stack([j @ t for j in jacobians])
         lengths = np.linalg.norm(corrected, axis=1)
         key = (int(np.count_nonzero(lengths >= _MOVED_PX)), round(float(lengths.sum()), 6), float(np.linalg.norm(t)))
-        if best is None or key < best[0]:
-            best = (key, corrected, t)
-    return best[1], best[2]
+        out.append((key, corrected, t))
+    return out
+
+
+def _moved(shifts: np.ndarray) -> frozenset[int]:
+    return frozenset(np.flatnonzero(np.linalg.norm(shifts, axis=1) >= _MOVED_PX).tolist())
+
+
+def _gauge(shifts: np.ndarray, jacobians: Sequence[np.ndarray],
+           moved: frozenset[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Of the corrections equivalent up to a common 3D translation, the one that moves the fewest
+    views (corrections of at least _MOVED_PX), then the shortest in total; with ``moved``, the
+    shortest of those that move exactly these views (if any). Returns ``(corrected, translation)``.
+    """
+    candidates = _gauge_candidates(shifts, jacobians)
+    if moved is not None:
+        candidates = [c for c in candidates if _moved(c[1]) == moved] or candidates
+    _, corrected, t = min(candidates, key=lambda c: c[0])
+    # The translation that best leaves the unmoved views in place (least squares over all of them),
+    # so that the result does not depend on where the estimate started (equivariance); their small
+    # leftovers are the views' own disagreement.
+    unmoved = sorted(set(range(len(jacobians))) - _moved(corrected))
+    if unmoved:
+        fitted = np.linalg.lstsq(np.vstack([jacobians[v] for v in unmoved]),
+                                 np.concatenate([shifts[v] for v in unmoved]), rcond=None)[0]
+        refitted = shifts - np.stack([j @ fitted for j in jacobians])
+        if _moved(refitted) == _moved(corrected):
+            return refitted, fitted
+    return corrected, t
+
+
+def _tied(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The gauge's near-ties: equivalent corrections that move as few views as the best one, in
+    total at most _TIE_PX longer, and differ from each other by _MOVED_PX or more in some view.
+    Returns ``[(corrected, translation)]``, the best first."""
+    candidates = sorted(_gauge_candidates(shifts, jacobians), key=lambda c: c[0])
+    best = candidates[0][0]
+    tied: list[tuple[np.ndarray, np.ndarray]] = []
+    for key, corrected, t in candidates:
+        if key[0] == best[0] and key[1] <= best[1] + _TIE_PX and \
+                all(np.abs(corrected - other).max() >= _MOVED_PX for other, _ in tied):
+            tied.append((corrected, t))
+    return tied
+
+
+def _break_tie(projections: Sequence[Projection], centre_lines: Sequence[Centreline], shifts: np.ndarray,
+               jacobians: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """When the gauge's choice is a near-tie (views that share an image axis), the alternative whose
+    views agree best after the centreline fit: the object's translation between the alternatives
+    changes its depth, and so its magnification, in the other views. Returns the shifts and the
+    further 3D translation of the object."""
+    options = _tied(shifts, jacobians)
+    if len(options) < 2:
+        return shifts, np.zeros(3)
+    scored = []
+    for corrected, t in options:
+        polished = polish_shifts(projections, centre_lines, corrected)
+        again, further = _gauge(polished, jacobians, moved=_moved(corrected))
+        scored.append((consistency_cost(projections, centre_lines, polished), again, t + further))
+    _, chosen, translation = min(scored, key=lambda o: o[0])
+    return chosen, translation
 
 
 def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
@@ -337,9 +403,13 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
     shifts, history = max(outcomes, key=lambda o: last.coverage(o[0]))
     final, translation = _gauge(shifts, jacobians)
     if fit_centrelines:
-        final = polish_shifts(projections, [Centreline(m) for m in masks], final)
+        centre_lines = [Centreline(m) for m in masks]
+        final = polish_shifts(projections, centre_lines, final)
     final, further = _gauge(final, jacobians)  # again, after the fit; the object moved by both
     translation = translation + further
+    if fit_centrelines:
+        final, further = _break_tie(projections, centre_lines, final, jacobians)
+        translation = translation + further
     finest = CALIBRATION_LEVELS[-1][0]
     level = last if last.lattice.resolution == finest else _Level(projections, masks, half_edge, finest, threshold_px)
     return Calibration(

@@ -45,7 +45,7 @@ from skimage.morphology import thin
 
 from ..geometry import Projection
 
-__all__ = ["Centreline", "match_pair", "fit_view_shift", "polish_shifts", "PAIRS_PER_VIEW"]
+__all__ = ["Centreline", "match_pair", "fit_view_shift", "polish_shifts", "consistency_cost", "PAIRS_PER_VIEW"]
 
 RADIUS_TOLERANCE = 0.3
 """Two matched centreline pixels must show the same vessel radius (mm, at the triangulated point)
@@ -295,3 +295,19 @@ def polish_shifts(projections: Sequence[Projection], centre_lines: Sequence[Cent
         if moved <= tolerance_px:
             break
     return shifts
+
+
+def consistency_cost(projections: Sequence[Projection], centre_lines: Sequence[Centreline], shifts_px, *,
+                     cutoff_px: float = 2.0) -> float:
+    """How badly the shifted views disagree: the sum over views of the fit cost of each view's
+    shift against the points triangulated from the others (pixels squared; 0 when every
+    triangulated point lands on a centreline)."""
+    shifts = np.asarray(shifts_px, dtype=float)
+    total = 0.0
+    for v, projection in enumerate(projections):
+        points, weights = _triangulated_for(v, projections, centre_lines, shifts)
+        if len(points) == 0 or centre_lines[v].tree is None:
+            total += cutoff_px ** 2
+            continue
+        total += _cost(centre_lines[v], projection.project(points), weights, shifts[v], cutoff_px)
+    return total
