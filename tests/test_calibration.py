@@ -10,7 +10,7 @@ from angiohull.geometry import CArmGeometry
 from angiohull.metrics import dice2d, scores_3d
 from angiohull.rasterise import cell_silhouette
 from angiohull.reconstruction import reconstruct
-from angiohull.reconstruction.calibration import _gauge, _jacobian, calibrate_shifts, shift_projection
+from angiohull.reconstruction.calibration import _gauge, _jacobian, _support_map, calibrate_shifts, shift_projection
 from angiohull.synthetic import SynthOptions, carm_views, make_case
 
 
@@ -27,6 +27,25 @@ def test_jacobian_is_the_derivative_at_the_isocentre():
     numeric = np.stack([(projection.project(np.eye(3)[i:i + 1] * step) - projection.project(np.zeros((1, 3))))[0] / step
                         for i in range(3)], axis=1)
     assert np.allclose(_jacobian(projection), numeric, atol=1e-4)
+
+
+@pytest.mark.parametrize("window", [1, 6, 40])
+def test_support_map_counts_the_points_on_the_mask_for_every_shift(window):
+    # Slow reference: for each integer shift, the fraction of points whose nearest pixel, moved by
+    # the shift, is a mask pixel (points near and beyond the image border included).
+    projection = CArmGeometry(20.0, -15.0, 1100.0, 750.0, (0.3, 0.3), (96, 128)).projection()
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-16.0, 16.0, (400, 3))
+    mask = rng.random((96, 128)) < 0.3
+    support = _support_map(points, projection, mask, window)
+    pixel = np.floor(projection.project(points) + 0.5).astype(int)
+    expected = np.zeros((2 * window + 1, 2 * window + 1))
+    for dv in range(-window, window + 1):
+        for du in range(-window, window + 1):
+            u, v = pixel[:, 0] + du, pixel[:, 1] + dv
+            inside = (u >= 0) & (u < 128) & (v >= 0) & (v < 96)
+            expected[dv + window, du + window] = np.count_nonzero(mask[v[inside], u[inside]]) / len(points)
+    np.testing.assert_allclose(support, expected, atol=1e-12)
 
 
 def test_gauge_removes_a_common_translation_and_keeps_a_single_view_shift():

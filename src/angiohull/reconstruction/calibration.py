@@ -55,7 +55,7 @@ from typing import Sequence
 
 import numpy as np
 from scipy import ndimage as ndi
-from scipy.signal import fftconvolve
+from scipy.fft import irfft2, next_fast_len, rfft2
 
 from ..errors import ReconstructionError
 from ..geometry import Projection, cube_half_edge_mm
@@ -140,14 +140,16 @@ def _support_map(points: np.ndarray, projection: Projection, mask_near: np.ndarr
     iu = np.floor(uv[:, 0] + 0.5).astype(np.int64) + window
     iv = np.floor(uv[:, 1] + 0.5).astype(np.int64) + window
     ok = (iu >= 0) & (iu < cols + 2 * window) & (iv >= 0) & (iv < rows + 2 * window)
-    density = np.zeros((rows + 2 * window, cols + 2 * window))
+    # C(s) = sum_x D(x) M(x + s) on a canvas padded by the window: as a circular correlation it wraps
+    # only into the padding, where the mask is empty, for |s| <= window.
+    shape = (next_fast_len(rows + 2 * window, real=True), next_fast_len(cols + 2 * window, real=True))
+    density = np.zeros(shape)
     np.add.at(density, (iv[ok], iu[ok]), 1.0)
-    # C(s) = sum_x D(x) M(x + s) over the padded canvas: the kernel is the mask flipped.
-    canvas = np.zeros_like(density)
+    canvas = np.zeros(shape)
     canvas[window:window + rows, window:window + cols] = mask_near
-    full = fftconvolve(canvas, density[::-1, ::-1], mode="full")
-    centre_r, centre_c = density.shape[0] - 1, density.shape[1] - 1
-    block = full[centre_r - window:centre_r + window + 1, centre_c - window:centre_c + window + 1]
+    correlation = irfft2(np.conj(rfft2(density)) * rfft2(canvas), s=shape)
+    offsets = np.arange(-window, window + 1)
+    block = correlation[np.ix_(offsets % shape[0], offsets % shape[1])]
     return np.clip(np.round(block), 0, None) / max(1, len(points))
 
 
