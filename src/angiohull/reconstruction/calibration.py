@@ -4,7 +4,7 @@ The header geometry of real C-arm runs disagrees by tens of pixels between views
 isocentre offsets the header does not carry); a misplaced view carves the true vessel away. The
 shift of one view is observable from the others: the visual hull of the *other* views, projected
 into it, should land on its mask. :func:`calibrate_shifts` estimates a shift ``(du, dv)`` per view
-that maximises that agreement:
+that maximises that agreement (three views or more; two views: see the end):
 
 1. **Support score.** For view ``v`` with the current corrections, carve the hull of the other
    views (a coarse lattice; the threshold widened to the lattice spacing so that thin vessels are
@@ -23,11 +23,9 @@ that maximises that agreement:
    round (within 20 %), each is tried as the first move and the outcome with the highest final
    coverage is kept.
 3. **Coarse to fine.** The same rounds on finer lattices with a smaller search window.
-4. **Centreline fit** (three views or more, :mod:`.centreline_fit`). The support score is flat
-   over a pixel or two and leans towards phantom volume; the last step fits each view's shift to
-   the 2D centrelines of the others, triangulated along epipolar planes, to a fraction of a pixel.
-   With two views (nothing to triangulate against) a finer lattice (K = 256) and a parabola
-   through the support around its peak take its place.
+4. **Centreline fit** (:mod:`.centreline_fit`). The support score is flat over a pixel or two and
+   leans towards phantom volume; the last step fits each view's shift to the 2D centrelines of the
+   others, triangulated along epipolar planes, to a fraction of a pixel.
 5. **Gauge.** Shifting every view by the projection of one common 3D translation changes nothing
    but where the object sits (``J_v t`` with ``J_v`` the Jacobian of view ``v`` at the isocentre).
    Of the equivalent corrections, the one that moves the fewest views by a pixel or more, then the
@@ -35,13 +33,18 @@ that maximises that agreement:
    one view or a pair of views unmoved); its translation is then refitted by least squares to all
    the views it leaves unmoved, so that the answer does not depend on where the estimate started
    and their small leftovers show the views' own disagreement.
-6. **Ties** (three views or more). Views that share an image axis (the paper's perpendicular views
+6. **Ties.** Views that share an image axis (the paper's perpendicular views
    share one axis pairwise) leave a shift along that axis nearly undetermined: moving either view,
    with the object translated, explains the masks about equally well, and the gauge sees a near-tie
    (as many views moved, in total within ``_TIE_PX``). The translation between the alternatives
    changes the object's depth in the other views, and so its magnification there (about 0.6 % for
    20 px): each alternative is refitted to the centrelines and the one whose views agree best
    (:func:`.centreline_fit.consistency_cost`) is kept.
+
+**Two views** determine one number only (four shift components, three of them a common 3D
+translation): view 1's shift across its epipolar lines. The hull of one view is a whole cone, so
+the support score above has no meaning there; :func:`.epipolar.two_view_shift` instead makes the
+two masks cover the same planes of the pencil around the baseline, and the gauge step follows.
 
 A view's correction is applied as ``P' = T(du, dv) P`` (``T`` shifts pixel coordinates), so the
 returned shifts are what was done to the masks: a mask whose content moved by ``(+20, 0)`` px
@@ -61,13 +64,16 @@ from ..errors import ReconstructionError
 from ..geometry import Projection, cube_half_edge_mm
 from .cube import Lattice
 from .centreline_fit import Centreline, consistency_cost, polish_shifts
+from .epipolar import two_view_shift
 from .engines import ENGINES
 
 __all__ = ["Calibration", "calibrate_shifts", "shift_projection", "CALIBRATION_LEVELS"]
 
-CALIBRATION_LEVELS: tuple[tuple[int, float], ...] = ((64, 1.0), (112, 0.25), (160, 0.1), (256, 0.05))
-"""(lattice resolution K, search window as a fraction of max_shift_px) of the coarse-to-fine levels;
-the last one is used only with two views (with more, the centreline fit replaces it)."""
+CALIBRATION_LEVELS: tuple[tuple[int, float], ...] = ((64, 1.0), (112, 0.25), (160, 0.1))
+"""(lattice resolution K, search window as a fraction of max_shift_px) of the coarse-to-fine levels."""
+
+COVERAGE_RESOLUTION = 256
+"""Lattice resolution at which the reported coverage before and after is measured."""
 
 
 _MOVED_PX = 1.0  # a view whose correction is shorter than this counts as unmoved (gauge choice)
@@ -87,7 +93,7 @@ class Calibration:
     shifts_px: tuple[tuple[float, float], ...]  # (du, dv) per view, in the order given, after the gauge
     gauge_translation_mm: tuple[float, float, float]  # 3D translation the gauge steps moved the object by, in total
     coverage_before: tuple[float, ...]  # per view: fraction of its mask the hull of all views covers, uncorrected
-    coverage_after: tuple[float, ...]  # the same with the corrections (finest level, the reconstruction's threshold)
+    coverage_after: tuple[float, ...]  # the same, corrected (K = COVERAGE_RESOLUTION, reconstruction threshold)
     rounds: int  # greedy rounds that changed a view, over all levels
     history: list[tuple[int, int, float, float, float]] = field(default_factory=list, repr=False)
     # (level K, view, du, dv, gain) of every applied update
@@ -101,7 +107,8 @@ class Calibration:
         return {
             "method": ("greedy leave-one-out support maximisation, coarse to fine, then a fit to the other views' "
                        "triangulated centrelines; gauge: fewest views moved, then least total shift; near-ties: "
-                       "the alternative whose centrelines agree best"),
+                       "the alternative whose centrelines agree best; two views: agreement of the masks' "
+                       "epipolar planes"),
             "shifts_px": {n: {"du": s[0], "dv": s[1]} for n, s in zip(names, self.shifts_px)},
             "gauge_translation_mm": list(self.gauge_translation_mm),
             "coverage_before": dict(zip(names, self.coverage_before)),
@@ -240,22 +247,6 @@ def _greedy(level: "_Level", window: int, shifts: np.ndarray, history: list, nee
         history.append((level.lattice.resolution, v, float(du), float(dv), gain))
 
 
-def _subpixel(level: "_Level", shifts: np.ndarray) -> None:
-    """A parabola through each view's support around its integer optimum, per axis."""
-    for v, m in enumerate(level.support_maps(shifts, 1)):
-        if m is not None and int(np.argmax(m)) == 4:
-            shifts[v] += (_parabolic(m[1, :], 1), _parabolic(m[:, 1], 1))
-
-
-def _parabolic(values: np.ndarray, index: int) -> float:
-    """Sub-sample offset of the peak of a parabola through values[index - 1 .. index + 1]."""
-    if index <= 0 or index >= len(values) - 1:
-        return 0.0
-    left, centre, right = values[index - 1], values[index], values[index + 1]
-    denominator = left - 2.0 * centre + right
-    return float(np.clip(0.5 * (left - right) / denominator, -0.5, 0.5)) if denominator < 0 else 0.0
-
-
 def _gauge_candidates(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> list[tuple[tuple, np.ndarray, np.ndarray]]:
     """The corrections equivalent to ``shifts`` up to a common 3D translation ``t``, as
     ``(key, corrected shifts, t)`` with key = (views moved by _MOVED_PX or more, total shift, |t|).
@@ -338,6 +329,13 @@ def _break_tie(projections: Sequence[Projection], centre_lines: Sequence[Centrel
     return chosen, translation
 
 
+def _moved_view(n: int, view: int, shift) -> np.ndarray:
+    """Shifts of ``n`` views, all zero but ``view``'s."""
+    shifts = np.zeros((n, 2))
+    shifts[view] = shift
+    return shifts
+
+
 def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
                      max_shift_px: float = 60.0, threshold_px: float = 1.0, min_gain: float = 0.01,
                      max_rounds: int | None = None) -> Calibration:
@@ -375,45 +373,53 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
         raise ReconstructionError(f"max_shift_px must be >= 1, got {max_shift_px!r}")
     rounds = max_rounds if max_rounds is not None else 2 * n
     half_edge = cube_half_edge_mm(projections)  # the lattice stays where the headers put it
-    fit_centrelines = n >= 3
-    level_plan = CALIBRATION_LEVELS[:-1] if fit_centrelines else CALIBRATION_LEVELS
+    jacobians = [_jacobian(p) for p in projections]
+    if n == 2:
+        # one number is observable: view 1's shift across its epipolar lines (see .epipolar)
+        moved = _moved_view(2, 1, two_view_shift(*projections, *masks, max_shift_px=max_shift_px))
+        final, translation = _gauge(moved, jacobians)
+        level = _Level(projections, masks, half_edge, COVERAGE_RESOLUTION, threshold_px)
+        return Calibration(
+            shifts_px=tuple((float(a), float(b)) for a, b in final),
+            gauge_translation_mm=tuple(float(x) for x in translation),
+            coverage_before=tuple(level.coverage_per_view(np.zeros((n, 2)))),
+            coverage_after=tuple(level.coverage_per_view(final)),
+            rounds=0,
+        )
     levels = [(_Level(projections, masks, half_edge, k, threshold_px), max(2, int(np.ceil(max_shift_px * f))))
-              for k, f in level_plan]
+              for k, f in CALIBRATION_LEVELS]
     coarse, coarse_window = levels[0]
     maps = coarse.support_maps(np.zeros((n, 2)), coarse_window)
     # The first move decides which views carry the correction; near-ties (e.g. two views that share
     # an image axis) are all followed to the end and the most consistent outcome is kept.
     gains = [_best(m, coarse_window) for m in maps]
     top = max(g[0] for g in gains)
-    starts = [v for v, g in enumerate(gains) if top >= min_gain and g[0] >= 0.8 * top] or [None]
+    starts = [v for v, g in enumerate(gains) if top >= min_gain and g[0] >= 0.8 * top]
+    # the first move obeys the greedy rounds' rule too: none that lowers the masks' coverage
+    coverage_now = coarse.coverage(np.zeros((n, 2)))
+    starts = [v for v in starts
+              if coarse.coverage(_moved_view(n, v, gains[v][1:])) >= coverage_now - _MIN_COVERAGE_GAIN] or [None]
     outcomes = []
     for first in starts:
         shifts = np.zeros((n, 2))
         history: list[tuple[int, int, float, float, float]] = []
         if first is not None:
-            shifts[first] += gains[first][1:]
+            shifts = _moved_view(n, first, gains[first][1:])
             history.append((coarse.lattice.resolution, first, *map(float, gains[first][1:]), gains[first][0]))
         for index, (level, window) in enumerate(levels):
             needed = min_gain if index == 0 else 0.1 * min_gain
             _greedy(level, window, shifts, history, needed, rounds)
         outcomes.append((shifts, history))
-    jacobians = [_jacobian(p) for p in projections]
     last = levels[-1][0]
-    if not fit_centrelines:
-        for shifts, _ in outcomes:
-            _subpixel(last, shifts)
     shifts, history = max(outcomes, key=lambda o: last.coverage(o[0]))
     final, translation = _gauge(shifts, jacobians)
-    if fit_centrelines:
-        centre_lines = [Centreline(m) for m in masks]
-        final = polish_shifts(projections, centre_lines, final)
+    centre_lines = [Centreline(m) for m in masks]
+    final = polish_shifts(projections, centre_lines, final)
     final, further = _gauge(final, jacobians)  # again, after the fit; the object moved by both
     translation = translation + further
-    if fit_centrelines:
-        final, further = _break_tie(projections, centre_lines, final, jacobians)
-        translation = translation + further
-    finest = CALIBRATION_LEVELS[-1][0]
-    level = last if last.lattice.resolution == finest else _Level(projections, masks, half_edge, finest, threshold_px)
+    final, further = _break_tie(projections, centre_lines, final, jacobians)
+    translation = translation + further
+    level = _Level(projections, masks, half_edge, COVERAGE_RESOLUTION, threshold_px)
     return Calibration(
         shifts_px=tuple((float(a), float(b)) for a, b in final),
         gauge_translation_mm=tuple(float(x) for x in translation),

@@ -44,6 +44,7 @@ from scipy.spatial import cKDTree
 from skimage.morphology import thin
 
 from ..geometry import Projection
+from .epipolar import EpipolarPencil, ray_directions
 
 __all__ = ["Centreline", "match_pair", "fit_view_shift", "polish_shifts", "consistency_cost", "PAIRS_PER_VIEW"]
 
@@ -132,33 +133,6 @@ def _centring_offsets(mask: np.ndarray, skeleton: np.ndarray, pixels: np.ndarray
     return move[:, None] * normals
 
 
-def _ray_directions(projection: Projection, uv_px: np.ndarray) -> np.ndarray:
-    """Unit directions of the rays through pixels ``uv_px`` (pointing in front of the source)."""
-    homogeneous = np.column_stack([uv_px, np.ones(len(uv_px))])
-    directions = np.linalg.solve(projection.matrix[:, :3], homogeneous.T).T
-    return directions / np.linalg.norm(directions, axis=1, keepdims=True)
-
-
-class _Pencil:
-    """The pencil of planes around the baseline of two camera centres: a plane's angle."""
-
-    def __init__(self, centre_i: np.ndarray, centre_j: np.ndarray):
-        b = centre_j - centre_i
-        self.axis = b / np.linalg.norm(b)
-        helper = np.array([1.0, 0.0, 0.0]) if abs(self.axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        self.e1 = np.cross(self.axis, helper)
-        self.e1 /= np.linalg.norm(self.e1)
-        self.e2 = np.cross(self.axis, self.e1)
-        self.offset = 0.0
-
-    def angle(self, directions: np.ndarray) -> np.ndarray:
-        # the plane through the baseline and a ray from either centre has normal axis x direction
-        # (for a ray from C_j, axis x (C_j - C_i + l d) = l axis x d): one formula for both views
-        normals = np.cross(self.axis, directions)
-        raw = np.arctan2(normals @ self.e2, normals @ self.e1)
-        return np.angle(np.exp(1j * (raw - self.offset)))
-
-
 def match_pair(projection_i: Projection, projection_j: Projection, centre_line_i: Centreline,
                centre_line_j: Centreline, match_tolerance_px: float = 0.75) -> tuple[np.ndarray, np.ndarray]:
     """Triangulated candidate matches of two views' centreline pixels, and their weights.
@@ -168,9 +142,9 @@ def match_pair(projection_i: Projection, projection_j: Projection, centre_line_i
     if len(centre_line_i.uv_px) == 0 or len(centre_line_j.uv_px) == 0:
         return np.zeros((0, 3)), np.zeros(0)
     c_i, c_j = projection_i.camera_centre_mm, projection_j.camera_centre_mm
-    d_i = _ray_directions(projection_i, centre_line_i.uv_px)
-    d_j = _ray_directions(projection_j, centre_line_j.uv_px)
-    pencil = _Pencil(c_i, c_j)
+    d_i = ray_directions(projection_i, centre_line_i.uv_px)
+    d_j = ray_directions(projection_j, centre_line_j.uv_px)
+    pencil = EpipolarPencil(c_i, c_j)
     phi_i = pencil.angle(d_i)
     pencil.offset = float(np.angle(np.mean(np.exp(1j * phi_i))))  # keep the angles away from +-pi
     phi_i = pencil.angle(d_i)
@@ -178,7 +152,7 @@ def match_pair(projection_i: Projection, projection_j: Projection, centre_line_i
     # angular size of one pixel, from unit steps in u and v
     pixel_angle = []
     for projection, uv, phi in ((projection_i, centre_line_i.uv_px, phi_i), (projection_j, centre_line_j.uv_px, phi_j)):
-        steps = [np.angle(np.exp(1j * (pencil.angle(_ray_directions(projection, uv + step)) - phi)))
+        steps = [np.angle(np.exp(1j * (pencil.angle(ray_directions(projection, uv + step)) - phi)))
                  for step in ((1.0, 0.0), (0.0, 1.0))]
         pixel_angle.append(float(np.median(np.hypot(*steps))))
     tolerance = match_tolerance_px * max(pixel_angle)
@@ -244,7 +218,7 @@ def fit_view_shift(centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarr
 
 def _view_direction(projection: Projection) -> np.ndarray:
     """Unit direction from the source through the principal point."""
-    return _ray_directions(projection, np.array([projection.principal_point_px]))[0]
+    return ray_directions(projection, np.array([projection.principal_point_px]))[0]
 
 
 def _pairs_for(view: int, projections: Sequence[Projection]) -> list[tuple[int, int]]:
