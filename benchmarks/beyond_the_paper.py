@@ -9,7 +9,7 @@ Runs, with the same defaults for every case:
   clinical views; view 0 of the clinical views translated by 10-50 px, and of the perpendicular
   views by 20 px (along an axis it shares with another view, see docs/beyond-the-paper.md); view 0
   of the clinical views scaled; false positives p up to 0.1; false negatives p up to 0.9; 2, 4 and
-  6 views.
+  6 views; view 0 of 2 views translated by 10 px.
 
 Prints Markdown tables of mean Dice3D, IoU3D and Chamfer per setting and method.
 
@@ -166,6 +166,8 @@ def main() -> None:
             6: "RAO 30 CRA 30; LAO 60 CRA 30; RAO 30 CAU 30; LAO 45 CAU 30; AP; LAO 90"}
     for n, views in many.items():
         tasks += [(f"{n} views", s, views, (), base) for s in seeds]
+    tasks += [("2 views, view 0 translated by (10, 0) px", s, many[2], ("translate=10,0",), list(METHODS))
+              for s in seeds]
     tasks += [("view 0 translated by (20, 0) px, clinical, exact masks", s, "clinical", ("translate=20,0",),
                ["paper + calibrate"], "exact") for s in seeds]
     peer = []
@@ -195,6 +197,8 @@ def main() -> None:
     for label, source, key in (("generated, exact masks, 20 px", results, "exact masks"),
                                ("generated, paper rasteriser, clinical, 10-50 px", results, "px, clinical"),
                                ("generated, paper rasteriser, perpendicular, 20 px", results, "px, perpendicular"),
+                               ("generated, paper rasteriser, 2 views, 10 px (two views determine only the geometry "
+                                "error's component; the rest is a translation)", results, "2 views, view 0"),
                                ("authors' clinical studies, 20 px", peer_results, "px, clinical"),
                                ("authors' perpendicular studies, 20 px", peer_results, "px, perpendicular")):
         errors = [r["paper + calibrate"][3] for k, v in source.items() if key in k and "translated" in k
