@@ -377,15 +377,27 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
     if n == 2:
         # one number is observable: view 1's shift across its epipolar lines (see .epipolar)
         moved = _moved_view(2, 1, two_view_shift(*projections, *masks, max_shift_px=max_shift_px))
+        history: list[tuple[int, int, float, float, float]] = []
         final, translation = _gauge(moved, jacobians)
-        level = _Level(projections, masks, half_edge, COVERAGE_RESOLUTION, threshold_px)
-        return Calibration(
-            shifts_px=tuple((float(a), float(b)) for a, b in final),
-            gauge_translation_mm=tuple(float(x) for x in translation),
-            coverage_before=tuple(level.coverage_per_view(np.zeros((n, 2)))),
-            coverage_after=tuple(level.coverage_per_view(final)),
-            rounds=0,
-        )
+    else:
+        final, translation, history = _support_then_centrelines(
+            projections, masks, jacobians, half_edge, threshold_px, max_shift_px, min_gain, rounds)
+    level = _Level(projections, masks, half_edge, COVERAGE_RESOLUTION, threshold_px)
+    return Calibration(
+        shifts_px=tuple((float(a), float(b)) for a, b in final),
+        gauge_translation_mm=tuple(float(x) for x in translation),
+        coverage_before=tuple(level.coverage_per_view(np.zeros((n, 2)))),
+        coverage_after=tuple(level.coverage_per_view(final)),
+        rounds=len(history),
+        history=history,
+    )
+
+
+def _support_then_centrelines(projections, masks, jacobians, half_edge, threshold_px, max_shift_px, min_gain,
+                              rounds) -> tuple[np.ndarray, np.ndarray, list]:
+    """Steps 1-6 of the module notes (three views or more): the shifts in the gauge, the 3D
+    translation the gauge steps moved the object by, and the greedy history."""
+    n = len(projections)
     levels = [(_Level(projections, masks, half_edge, k, threshold_px), max(2, int(np.ceil(max_shift_px * f))))
               for k, f in CALIBRATION_LEVELS]
     coarse, coarse_window = levels[0]
@@ -418,13 +430,4 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
     final, further = _gauge(final, jacobians)  # again, after the fit; the object moved by both
     translation = translation + further
     final, further = _break_tie(projections, centre_lines, final, jacobians)
-    translation = translation + further
-    level = _Level(projections, masks, half_edge, COVERAGE_RESOLUTION, threshold_px)
-    return Calibration(
-        shifts_px=tuple((float(a), float(b)) for a, b in final),
-        gauge_translation_mm=tuple(float(x) for x in translation),
-        coverage_before=tuple(level.coverage_per_view(np.zeros((n, 2)))),
-        coverage_after=tuple(level.coverage_per_view(final)),
-        rounds=len(history),
-        history=history,
-    )
+    return final, translation + further, history
