@@ -18,3 +18,13 @@ def random_case(seed, n_views=3, shape=(96, 80)):
         projections.append(carm.projection())
         masks.append(mask)
     return projections, masks
+
+
+def geometry_error_px(jacobians, estimated, truth):
+    """Largest per-view difference of two sets of view shifts ``(N, 2)`` left after removing the
+    common 3D translation ``t`` (every view moved by ``J_v t``) that best explains it, in the least-
+    squares sense: the error of the geometry, whatever the calibration's gauge."""
+    jacobians = np.vstack(jacobians)
+    difference = (np.asarray(estimated, dtype=float) - np.asarray(truth, dtype=float)).ravel()
+    t = np.linalg.lstsq(jacobians, difference, rcond=None)[0]
+    return float(np.linalg.norm((difference - jacobians @ t).reshape(-1, 2), axis=1).max())

@@ -8,16 +8,14 @@ from angiohull.reconstruction.epipolar import EpipolarPencil, ray_directions, tw
 from angiohull.synthetic import SynthOptions, make_case
 from angiohull.synthetic.corruptions import FalsePositives, Translate
 
+from _cases import geometry_error_px
+
 TWO_VIEWS = "RAO 30 CRA 30; LAO 60 CRA 30"
 
 
 def _geometry_error(projections, estimated, truth):
-    """Largest per-view error left after removing the common 3D translation that best explains the
-    difference: with two views, the error of the one shift component they determine."""
-    jacobians = np.vstack([_jacobian(p) for p in projections])
-    difference = (np.asarray(estimated) - np.asarray(truth)).ravel()
-    t = np.linalg.lstsq(jacobians, difference, rcond=None)[0]
-    return float(np.linalg.norm((difference - jacobians @ t).reshape(-1, 2), axis=1).max())
+    """With two views, the error of the one shift component they determine."""
+    return geometry_error_px([_jacobian(p) for p in projections], estimated, truth)
 
 
 def test_a_3d_point_projects_onto_the_same_plane_in_both_views():
