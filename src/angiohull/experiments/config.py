@@ -252,6 +252,17 @@ def _check_views(value: Union[str, tuple[str, ...]]) -> Union[str, tuple[str, ..
     return value
 
 
+def _each_once(what: str):
+    """A validator that rejects a tuple naming some ``what`` twice."""
+
+    def check(value: tuple[str, ...]) -> tuple[str, ...]:
+        if len(set(value)) != len(value):
+            raise ValueError(f"expected each {what} once, got {list(value)}")
+        return value
+
+    return check
+
+
 class TreesDesign(_Model):
     """``trees`` trees per tortuosity level (and per sweep value), in a fixed set of views."""
 
@@ -264,12 +275,7 @@ class TreesDesign(_Model):
 
     _views = field_validator("views")(_check_views)
 
-    @field_validator("tortuosity")
-    @classmethod
-    def _unique_levels(cls, value: tuple[str, ...]) -> tuple[str, ...]:
-        if len(set(value)) != len(value):
-            raise ValueError(f"expected each level once, got {list(value)}")
-        return value
+    _unique_levels = field_validator("tortuosity")(_each_once("level"))
 
     @model_validator(mode="after")
     def _sweep_views_exist(self) -> "TreesDesign":
@@ -358,12 +364,7 @@ class ExperimentConfig(_Model):
     report: ReportSettings = ReportSettings()
     quick: QuickSettings = QuickSettings()
 
-    @field_validator("metrics")
-    @classmethod
-    def _unique_metrics(cls, value: tuple[str, ...]) -> tuple[str, ...]:
-        if len(set(value)) != len(value):
-            raise ValueError(f"expected each metric once, got {list(value)}")
-        return value
+    _unique_metrics = field_validator("metrics")(_each_once("metric"))
 
     @model_validator(mode="after")
     def _report_fits_design(self) -> "ExperimentConfig":
