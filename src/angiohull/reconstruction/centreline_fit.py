@@ -46,7 +46,8 @@ from skimage.morphology import thin
 from ..geometry import Projection
 from .epipolar import EpipolarPencil, ray_directions
 
-__all__ = ["Centreline", "match_pair", "fit_view_shift", "polish_shifts", "consistency_cost", "PAIRS_PER_VIEW"]
+__all__ = ["Centreline", "match_pair", "fit_view_shift", "polish_shifts", "consistency_cost", "fit_jointly",
+           "PAIRS_PER_VIEW"]
 
 RADIUS_TOLERANCE = 0.3
 """Two matched centreline pixels must show the same vessel radius (mm, at the triangulated point)
@@ -238,11 +239,19 @@ def _pairs_for(view: int, projections: Sequence[Projection]) -> list[tuple[int, 
     return pairs[:PAIRS_PER_VIEW]
 
 
-def _triangulated_for(view: int, projections: Sequence[Projection], centre_lines: Sequence[Centreline],
-                      shifts_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    current = {i: p.shifted(*shifts_px[i]) for i, p in enumerate(projections) if i != view}
-    parts = [match_pair(current[i], current[j], centre_lines[i], centre_lines[j]) for i, j in _pairs_for(view, projections)]
-    parts = [(x, w / w.sum()) for x, w in parts if len(x)]  # every pair counts the same
+def _triangulated_for(pairs: Sequence[tuple[int, int]], projections: Sequence[Projection],
+                      centre_lines: Sequence[Centreline], shifts_px: np.ndarray,
+                      matched: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The points triangulated from ``pairs`` of views (those that fit a view: :func:`_pairs_for`;
+    weights: every pair counts the same). ``matched`` caches :func:`match_pair` for one set of shifts."""
+    matched = {} if matched is None else matched
+    parts = []
+    for i, j in pairs:
+        if (i, j) not in matched:
+            matched[i, j] = match_pair(projections[i].shifted(*shifts_px[i]), projections[j].shifted(*shifts_px[j]),
+                                       centre_lines[i], centre_lines[j])
+        parts.append(matched[i, j])
+    parts = [(x, w / w.sum()) for x, w in parts if len(x)]
     if not parts:
         return np.zeros((0, 3)), np.zeros(0)
     return np.concatenate([x for x, _ in parts]), np.concatenate([w for _, w in parts])
@@ -258,10 +267,11 @@ def polish_shifts(projections: Sequence[Projection], centre_lines: Sequence[Cent
     shifts = np.array(shifts_px, dtype=float)
     if len(projections) < 3:
         raise ValueError("centreline fitting needs at least three views")
+    pair_lists = [_pairs_for(v, projections) for v in range(len(projections))]
     for sweep in range(max_sweeps):
         moved = 0.0
         for v, projection in enumerate(projections):
-            points, weights = _triangulated_for(v, projections, centre_lines, shifts)
+            points, weights = _triangulated_for(pair_lists[v], projections, centre_lines, shifts)
             new, _ = fit_view_shift(centre_lines[v], projection.project(points) if len(points) else points[:, :2],
                                     weights, shifts[v], reach_px=reach_px if sweep == 0 else 1, cutoff_px=cutoff_px)
             moved = max(moved, float(np.max(np.abs(new - shifts[v]))))
@@ -276,12 +286,57 @@ def consistency_cost(projections: Sequence[Projection], centre_lines: Sequence[C
     """How badly the shifted views disagree: the sum over views of the fit cost of each view's
     shift against the points triangulated from the others (pixels squared; 0 when every
     triangulated point lands on a centreline)."""
-    shifts = np.asarray(shifts_px, dtype=float)
+    pair_lists = [_pairs_for(v, projections) for v in range(len(projections))]
+    return _summed_cost(projections, centre_lines, np.asarray(shifts_px, dtype=float), pair_lists, cutoff_px)
+
+
+def _summed_cost(projections, centre_lines, shifts: np.ndarray, pair_lists, cutoff_px: float) -> float:
     total = 0.0
+    matched: dict = {}  # a pair of views serves several views' fits
     for v, projection in enumerate(projections):
-        points, weights = _triangulated_for(v, projections, centre_lines, shifts)
+        points, weights = _triangulated_for(pair_lists[v], projections, centre_lines, shifts, matched)
         if len(points) == 0 or centre_lines[v].tree is None:
             total += cutoff_px ** 2
             continue
         total += _cost(centre_lines[v], projection.project(points), weights, shifts[v], cutoff_px)
     return total
+
+
+def fit_jointly(projections: Sequence[Projection], centre_lines: Sequence[Centreline], shifts_px,
+                gauge_directions: np.ndarray, *, cutoff_px: float = 2.0,
+                steps_px: Sequence[float] = (1.0, 0.5, 0.25, 0.1, 0.05), max_passes: int = 20) -> tuple[np.ndarray, float]:
+    """Minimise :func:`consistency_cost` over all views' shifts together (a pattern search).
+
+    :func:`polish_shifts` moves one view at a time against the others, which is not a descent on
+    the summed cost: along a direction the cost barely sees (two views that share an image axis)
+    its sweeps wander. Here every trial step changes the summed cost's argument directly. The search
+    runs along an orthonormal basis of the shift changes that ``gauge_directions`` (2N, k) -- the
+    columns the common 3D translation produces -- do not explain; each step size is repeated until
+    a pass over the basis (both signs) no longer lowers the cost.
+
+    Returns ``(shifts (N, 2), cost)``.
+    """
+    shifts = np.asarray(shifts_px, dtype=float).ravel()
+    gauge = np.asarray(gauge_directions, dtype=float).reshape(len(shifts), -1)
+    u, singular, _ = np.linalg.svd(gauge, full_matrices=True)
+    rank = int(np.count_nonzero(singular > 1e-9 * max(1.0, float(singular.max(initial=0.0)))))
+    basis = u[:, rank:].T  # rows: unit directions orthogonal to the gauge
+
+    pair_lists = [_pairs_for(v, projections) for v in range(len(projections))]
+
+    def cost(x: np.ndarray) -> float:
+        return _summed_cost(projections, centre_lines, x.reshape(-1, 2), pair_lists, cutoff_px)
+
+    best = cost(shifts)
+    for step in steps_px:
+        for _ in range(max_passes):
+            improved = False
+            for direction in basis:
+                for trial in (shifts + step * direction, shifts - step * direction):
+                    value = cost(trial)
+                    if value < best - 1e-12:
+                        shifts, best, improved = trial, value, True
+                        break
+            if not improved:
+                break
+    return shifts.reshape(-1, 2), best
