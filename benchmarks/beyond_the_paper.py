@@ -8,8 +8,8 @@ Runs, with the same defaults for every case:
 * on generated RCA trees (moderate; the paper's rasteriser and geometry): clean perpendicular and
   clinical views; view 0 of the clinical views translated by 10-50 px, and of the perpendicular
   views by 20 px (along an axis it shares with another view, see docs/beyond-the-paper.md); view 0
-  of the clinical views scaled; false positives p up to 0.1; false negatives p up to 0.9; 2, 4 and
-  6 views; view 0 of 2 views translated by 10 px.
+  of the clinical views scaled (also with ``--calibrate-scale``); false positives p up to 0.1; false
+  negatives p up to 0.9; 2, 4 and 6 views; view 0 of 2 views translated by 10 px.
 
 Prints Markdown tables of mean Dice3D, IoU3D and Chamfer per setting and method.
 
@@ -30,11 +30,15 @@ import numpy as np  # noqa: E402
 
 SHARED = Path(os.environ.get("ANGIOHULL_SHARED", Path(__file__).resolve().parents[2] / "shared"))
 METHODS = {
-    "paper": dict(preset="paper", calibrate=False),
-    "paper + calibrate": dict(preset="paper", calibrate=True),
-    "refined": dict(preset="refined", calibrate=False),
-    "refined + calibrate": dict(preset="refined", calibrate=True),
+    "paper": dict(preset="paper", calibrate=False, scale=False),
+    "paper + calibrate": dict(preset="paper", calibrate=True, scale=False),
+    "refined": dict(preset="refined", calibrate=False, scale=False),
+    "refined + calibrate": dict(preset="refined", calibrate=True, scale=False),
+    "paper + calibrate (scales)": dict(preset="paper", calibrate=True, scale=True),
+    "refined + calibrate (scales)": dict(preset="refined", calibrate=True, scale=True),
 }
+SHIFTED = ["paper", "paper + calibrate", "refined", "refined + calibrate"]  # the rows with a translated view
+SCALED = ["paper", "refined", "paper + calibrate (scales)", "refined + calibrate (scales)"]  # the scaled view's rows
 
 
 RASTER_OFFSET_PX = {"paper": -0.5, "exact": 0.0}
@@ -59,20 +63,26 @@ def _shift_errors(projections, estimated, true_shifts):
     return raw, float(np.linalg.norm((difference - jacobians @ t).reshape(-1, 2), axis=1).max())
 
 
-def _score(projections, masks, truth, method, true_shifts=None):
+def _score(projections, masks, truth, method, true_shifts=None, calibrations=None):
+    """(Dice3D, IoU3D, Chamfer, shift errors or None, estimated scales or None); ``calibrations``
+    caches one calibration per kind for the methods of one case."""
     from angiohull.metrics import scores_3d
     from angiohull.reconstruction import reconstruct
     from angiohull.reconstruction.calibration import calibrate_shifts
 
-    errors = None
+    errors = scales = None
     if method["calibrate"]:
-        calibration = calibrate_shifts(projections, masks)
+        calibrations = {} if calibrations is None else calibrations
+        if method["scale"] not in calibrations:
+            calibrations[method["scale"]] = calibrate_shifts(projections, masks, estimate_scale=method["scale"])
+        calibration = calibrations[method["scale"]]
         if true_shifts is not None:
             errors = _shift_errors(projections, calibration.shifts_px, true_shifts)
+        scales = calibration.scales
         projections = calibration.corrected(projections)
     points = reconstruct(projections, masks, preset=method["preset"], centerlines=False, allow_empty=True).vessel_points_mm
     s = scores_3d(points, truth)
-    return s.dice3d, s.iou3d, s.chamfer_mm, errors
+    return s.dice3d, s.iou3d, s.chamfer_mm, errors, scales
 
 
 def _true_shifts(n_views, view0_px, rasteriser):
@@ -91,7 +101,9 @@ def _generated(task):
     masks = [v.mask for v in case.views]
     moved = [float(c.split("=")[1].split(",")[0]) for c in corruptions if c.startswith("translate=")]
     true_shifts = _true_shifts(len(masks), (moved[0], 0.0), rasteriser) if moved else None
-    return setting, {m: _score(projections, masks, case.surface_points_mm, METHODS[m], true_shifts) for m in methods}
+    cache: dict = {}
+    return setting, {m: _score(projections, masks, case.surface_points_mm, METHODS[m], true_shifts, cache)
+                     for m in methods}
 
 
 def _peer(task):
@@ -107,7 +119,8 @@ def _peer(task):
         true_shifts = _true_shifts(len(masks), (20.0, 0.0), "paper")
     elif corruption == "fp":
         masks = [FalsePositives(0.05, 1000 + i).apply(m) for i, m in enumerate(masks)]
-    return setting, {m: _score(list(study.projections), masks, study.ground_truth_mm, METHODS[m], true_shifts)
+    cache: dict = {}
+    return setting, {m: _score(list(study.projections), masks, study.ground_truth_mm, METHODS[m], true_shifts, cache)
                      for m in methods}
 
 
@@ -151,12 +164,12 @@ def main() -> None:
     for views in ("perpendicular", "clinical"):
         tasks += [(f"clean, {views}", s, views, (), base) for s in seeds]
     for t in (10, 20, 30, 50):
-        tasks += [(f"view 0 translated by ({t}, 0) px, clinical", s, "clinical", (f"translate={t},0",), list(METHODS))
+        tasks += [(f"view 0 translated by ({t}, 0) px, clinical", s, "clinical", (f"translate={t},0",), SHIFTED)
                   for s in seeds]
-    tasks += [("view 0 translated by (20, 0) px, perpendicular", s, "perpendicular", ("translate=20,0",), list(METHODS))
+    tasks += [("view 0 translated by (20, 0) px, perpendicular", s, "perpendicular", ("translate=20,0",), SHIFTED)
               for s in seeds]
     for f in (0.9, 0.95, 1.05, 1.1):
-        tasks += [(f"view 0 scaled by {f}, clinical", s, "clinical", (f"scale={f}",), base) for s in seeds]
+        tasks += [(f"view 0 scaled by {f}, clinical", s, "clinical", (f"scale={f}",), SCALED) for s in seeds]
     for p in (0.02, 0.05, 0.1):
         tasks += [(f"false positives p = {p}, perpendicular", s, "perpendicular", (f"fp={p}",), base) for s in seeds]
     for p in (0.3, 0.6, 0.9):
@@ -166,7 +179,7 @@ def main() -> None:
             6: "RAO 30 CRA 30; LAO 60 CRA 30; RAO 30 CAU 30; LAO 45 CAU 30; AP; LAO 90"}
     for n, views in many.items():
         tasks += [(f"{n} views", s, views, (), base) for s in seeds]
-    tasks += [("2 views, view 0 translated by (10, 0) px", s, many[2], ("translate=10,0",), list(METHODS))
+    tasks += [("2 views, view 0 translated by (10, 0) px", s, many[2], ("translate=10,0",), SHIFTED)
               for s in seeds]
     tasks += [("view 0 translated by (20, 0) px, clinical, exact masks", s, "clinical", ("translate=20,0",),
                ["paper + calibrate"], "exact") for s in seeds]
@@ -177,7 +190,7 @@ def main() -> None:
             views = study.name.split("_")[0]
             peer.append((f"clean, {views}", study, None, base))
             peer.append((f"5 % false positives, {views}", study, "fp", base))
-            peer.append((f"view 0 translated by (20, 0) px, {views}", study, "translate", list(METHODS)))
+            peer.append((f"view 0 translated by (20, 0) px, {views}", study, "translate", SHIFTED))
     results: dict[str, list] = {}
     peer_results: dict[str, list] = {}
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
@@ -205,6 +218,14 @@ def main() -> None:
                   and (key == "exact masks" or "exact" not in k) for r in v]
         if errors:
             _shift_summary(label, errors)
+    print("\nRecovered scales (paper + calibrate (scales); 1 = unchanged):\n")
+    for setting in order:
+        if "scaled by" in setting:
+            scales = np.array([r["paper + calibrate (scales)"][4] for r in results[setting]])
+            factor = float(setting.split("scaled by ")[1].split(",")[0])
+            print(f"- {setting}: view 0 {np.median(scales[:, 0]):.4f} median (off by at most "
+                  f"{np.abs(scales[:, 0] - factor).max():.4f}; {np.mean(np.abs(scales[:, 0] - factor) <= 0.005) * 100:.0f} % "
+                  f"within 0.005), the other views off 1 by at most {np.abs(scales[:, 1:] - 1.0).max():.4f}")
     print(f"\n({time.perf_counter() - start:.0f} s, {args.workers} workers)")
 
 

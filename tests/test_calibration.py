@@ -187,3 +187,65 @@ def test_evaluate_with_calibrate_reports_the_shifts(tmp_path, capsys):
     assert main(["evaluate", str(study), "--json", "--calibrate"]) == 0
     calibrated = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert calibrated["dice3d"] > plain["dice3d"] + 20
+
+
+def test_a_scaled_view_is_found_with_estimate_scale_and_the_hull_restored(tmp_path, capsys):
+    # Clinical views; view 0's mask content scaled by 0.9 about the image centre (= its principal
+    # point), unknown to the method. Measured (seeds 0-3, factors 0.9 and 1.1): the scale within
+    # 0.0025, every shift within 0.2 px, Dice3D 73-80 % (clean 77-79 %) against 59-70 % uncorrected.
+    import json
+
+    from angiohull.cli import main
+
+    def dice3d(folder):
+        assert main(["evaluate", str(folder), "--json"]) == 0
+        return json.loads(capsys.readouterr().out.strip().splitlines()[-1])["dice3d"]
+
+    clean, study = tmp_path / "clean", tmp_path / "scaled"
+    assert main(["synth", str(clean), "--seed", "1", "--views", "clinical", "-q"]) == 0
+    assert main(["synth", str(study), "--seed", "1", "--views", "clinical", "--corrupt", "scale=0.9", "-q"]) == 0
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(study), "-o", str(out), "--calibrate-scale", "--no-figure", "-q"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["options"]["calibrate_scale"] is True
+    scales = list(report["calibration"]["scales"].values())
+    assert abs(scales[0] - 0.9) <= 0.005 and scales[1:] == [1.0, 1.0]
+    shifts = np.array([[s["du"], s["dv"]] for s in report["calibration"]["shifts_px"].values()])
+    assert np.abs(shifts).max() < 0.5
+    from angiohull.io import read_points
+    from angiohull.study import load_study
+
+    after = scores_3d(read_points(out / "vessel.ply"), load_study(study).ground_truth_mm).dice3d
+    reference, before = dice3d(clean), dice3d(study)
+    assert before < reference - 10  # the wrong magnification costs the hull ...
+    assert abs(after - reference) <= 2.0  # ... and the scale brings it back
+
+
+def test_views_that_agree_keep_scale_one():
+    case = make_case(SynthOptions(seed=2, views="clinical"))
+    calibration = calibrate_shifts([v.projection for v in case.views], [v.mask for v in case.views], estimate_scale=True)
+    assert calibration.scales == (1.0, 1.0, 1.0)
+    assert np.abs(np.array(calibration.shifts_px)).max() < 1.0
+
+
+def test_scale_estimation_needs_three_views():
+    case = make_case(SynthOptions(seed=1, views="clinical"))
+    with pytest.raises(ReconstructionError, match="at least 3 views"):
+        calibrate_shifts([v.projection for v in case.views][:2], [v.mask for v in case.views][:2], estimate_scale=True)
+
+
+def test_a_study_view_is_corrected_exactly_as_the_calibration_says():
+    # A C-arm view keeps its pose (SID times the scale, principal point moved); a bare matrix is
+    # multiplied; both give T(du, dv) S(f) P.
+    from angiohull.study import View
+    from angiohull.workflow import _corrected_view
+
+    carm = CArmGeometry(-30.0, 25.0, 1100.0, 750.0, (0.3, 0.3), (64, 80), (2.0, -1.0))
+    mask = np.zeros((64, 80), dtype=bool)
+    points = np.random.default_rng(5).uniform(-40, 40, (30, 3))
+    expected = carm.projection().magnified(0.93).shifted(4.5, -2.0).project(points)
+    for view in (View(name="a", mask=mask, projection=carm.projection(), carm=carm),
+                 View(name="b", mask=mask, projection=carm.projection())):
+        corrected = _corrected_view(view, 4.5, -2.0, 0.93)
+        np.testing.assert_allclose(corrected.projection.project(points), expected, atol=1e-9)
+        assert (corrected.carm is None) == (view.carm is None)

@@ -19,7 +19,8 @@ def test_every_study_of_the_paper_ships_at_the_papers_size():
         assert config.name == name and config.mode == "full"
         assert len(expand_cases(config)) == size, name
         assert config.reconstruction.model_dump() == {"engine": "octree", "resolution": 100, "threshold_px": 1.0,
-                                                      "preset": "paper", "calibrate": False, "min_views": None}
+                                                      "preset": "paper", "calibrate": False, "calibrate_scale": False,
+                                                      "min_views": None}
         assert config.generator.rasteriser == "paper"
         assert shipped_config_path(name).read_text().startswith("#"), "each file says what it reproduces"
 

@@ -197,3 +197,19 @@ def test_carm_frame_is_orthonormal_and_the_central_ray_hits_the_principal_point(
     ray = c.source_mm + np.outer([0.3, 0.7, 0.95], c.detector_centre_mm - c.source_mm)
     np.testing.assert_allclose(p.project(ray), [[99.5, 149.5]] * 3, atol=1e-7)
     assert p.field_half_edge_mm() == pytest.approx(c.sod_mm * max(200 * 0.35, 300 * 0.35) / (2 * sid))
+
+
+def test_magnified_view_is_the_same_pose_with_a_longer_source_to_image_distance():
+    # Oracle: the C-arm formula with SID * f (the principal point stays; focal lengths scale by f).
+    from dataclasses import replace
+
+    carm = CArmGeometry(-31.0, 22.0, 1100.0, 760.0, (0.3, 0.35), (480, 512), (4.0, -3.0))
+    points = np.random.default_rng(3).uniform(-60, 60, (50, 3))
+    for factor in (0.9, 1.0, 1.07):
+        expected = replace(carm, sid_mm=carm.sid_mm * factor).projection().project(points)
+        np.testing.assert_allclose(carm.projection().magnified(factor).project(points), expected, atol=1e-9)
+    # scaled about the principal point: that pixel does not move
+    p = carm.projection()
+    centre = np.array(p.principal_point_px)
+    ray_point = p.camera_centre_mm + 500.0 * np.linalg.solve(p.matrix[:, :3], np.append(centre, 1.0))
+    np.testing.assert_allclose(p.magnified(0.8).project(ray_point[None])[0], centre, atol=1e-9)

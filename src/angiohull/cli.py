@@ -55,6 +55,9 @@ def _add_beyond_paper_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibrate", action="store_true",
                         help="first estimate a per-view image shift that makes the views agree (header "
                              "geometry off by pixels to tens of pixels); the shifts go to report.json")
+    parser.add_argument("--calibrate-scale", action="store_true",
+                        help="--calibrate, and also a per-view image scale (a magnification the header has wrong, "
+                             "within 15 %%; three views or more)")
     parser.add_argument("--min-views", type=int, default=None, metavar="K",
                         help="robust carving: keep a point when at least K views keep it (default: all, the paper)")
 
@@ -136,11 +139,14 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
     from . import workflow
 
     calibration = None
-    if options.calibrate:
-        progress(f"calibrating {len(study.views)} views (per-view image shifts)")
+    if options.calibrate or options.calibrate_scale:
+        what = "shifts and scales" if options.calibrate_scale else "shifts"
+        progress(f"calibrating {len(study.views)} views (per-view image {what})")
         study, calibration = workflow.calibrate_study(study, options)
         shifts = ", ".join(f"{n} ({du:+.1f}, {dv:+.1f})" for n, (du, dv) in zip(study.names, calibration.shifts_px))
         progress(f"shifts (du, dv) px: {shifts}")
+        if options.calibrate_scale:
+            progress("scales: " + ", ".join(f"{n} {f:.4f}" for n, f in zip(study.names, calibration.scales)))
     progress(f"reconstructing {len(study.views)} views ({options.preset} preset) with engine {options.engine}")
     result = workflow.reconstruct_study(study, options)
     progress(f"kept {len(result.vessel_points_mm)} of {result.lattice.n_points} lattice points "
@@ -175,7 +181,8 @@ def _cmd_reconstruct(args) -> int:
     progress = _Progress(not args.quiet)
     study = load_study(args.study)
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines, args.device,
-                                 min_views=args.min_views, calibrate=args.calibrate, preset=args.preset)
+                                 min_views=args.min_views, calibrate=args.calibrate or args.calibrate_scale,
+                                 calibrate_scale=args.calibrate_scale, preset=args.preset)
     _, report, _ = _run_study(study, options, args.output, progress, figure=not args.no_figure, score=False)
     if not args.quiet:
         per_view = ", ".join(f"{v['name']} {v['dice2d_reprojection']:.1f} %" for v in report["views"])
@@ -193,7 +200,8 @@ def _cmd_evaluate(args) -> int:
     if study.ground_truth_mm is None:
         raise AngiohullError(f"{args.study}: the study has no ground truth; add 'ground_truth: gt.npy' to its study.yaml")
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=False, device=args.device,
-                                 min_views=args.min_views, calibrate=args.calibrate, preset=args.preset)
+                                 min_views=args.min_views, calibrate=args.calibrate or args.calibrate_scale,
+                                 calibrate_scale=args.calibrate_scale, preset=args.preset)
     _, _, scores = _run_study(study, options, None, progress, figure=False, score=True)
     if args.json:
         print(json.dumps(scores))

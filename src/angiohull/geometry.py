@@ -99,6 +99,13 @@ class Projection:
         shift = np.array([[1.0, 0.0, du_px], [0.0, 1.0, dv_px], [0.0, 0.0, 1.0]])
         return Projection(shift @ self.matrix, self.image_shape)
 
+    def magnified(self, factor: float) -> "Projection":
+        """The projection whose image is scaled by ``factor`` about the principal point: the same
+        view with the source-to-image distance (or one over the pixel spacing) times ``factor``."""
+        c_u, c_v = self.principal_point_px
+        scale = np.array([[factor, 0.0, (1.0 - factor) * c_u], [0.0, factor, (1.0 - factor) * c_v], [0.0, 0.0, 1.0]])
+        return Projection(scale @ self.matrix, self.image_shape)
+
     def depth_mm(self, points_mm: np.ndarray) -> np.ndarray:
         """Distance (mm) of each point from the source along the viewing axis; > 0 in front."""
         h = self.homogeneous(points_mm)

@@ -38,6 +38,7 @@ class ReconstructOptions:
     device: str = "cpu"  # where the lookup/octree engines run: cpu or cuda
     min_views: int | None = None  # robust carving: views that must keep a point (None: all, the paper)
     calibrate: bool = False  # estimate per-view image shifts first (calibrate_study)
+    calibrate_scale: bool = False  # also per-view image scales (implies calibrate; three views or more)
     preset: str = "paper"  # "paper" (as published) or "refined" (reconstruction.refine)
 
 
@@ -51,25 +52,28 @@ def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOpt
     )
 
 
-def _shifted_view(view: View, du_px: float, dv_px: float) -> View:
-    """The view with its image shifted by (du, dv): a C-arm view keeps its pose, with the principal
-    point moved (exactly ``T(du, dv) P``); a bare matrix is multiplied by the shift."""
-    if du_px == 0 and dv_px == 0:
+def _corrected_view(view: View, du_px: float, dv_px: float, scale: float = 1.0) -> View:
+    """The view with its image scaled by ``scale`` about the principal point and then shifted by
+    (du, dv): a C-arm view keeps its pose, with the source-to-image distance times ``scale`` and the
+    principal point moved (exactly ``T(du, dv) S P``); a bare matrix is multiplied by both."""
+    if du_px == 0 and dv_px == 0 and scale == 1.0:
         return view
     if view.carm is not None:
         du0, dv0 = view.carm.principal_offset_px
-        carm = replace(view.carm, principal_offset_px=(du0 + du_px, dv0 + dv_px))
+        carm = replace(view.carm, sid_mm=view.carm.sid_mm * scale, principal_offset_px=(du0 + du_px, dv0 + dv_px))
         return replace(view, carm=carm, projection=carm.projection())
-    return replace(view, projection=shift_projection(view.projection, du_px, dv_px))
+    return replace(view, projection=shift_projection(view.projection.magnified(scale), du_px, dv_px))
 
 
 def calibrate_study(study: Study, options: ReconstructOptions = ReconstructOptions(), *,
                     max_shift_px: float = 60.0) -> tuple[Study, Calibration]:
-    """Estimate per-view image shifts (:func:`~angiohull.reconstruction.calibration.calibrate_shifts`)
-    and return the study with them applied, and the calibration."""
+    """Estimate per-view image shifts, and scales with ``options.calibrate_scale``
+    (:func:`~angiohull.reconstruction.calibration.calibrate_shifts`), and return the study with them
+    applied, and the calibration."""
     calibration = calibrate_shifts(study.projections, study.masks, threshold_px=options.threshold_px,
-                                   max_shift_px=max_shift_px)
-    views = tuple(_shifted_view(v, du, dv) for v, (du, dv) in zip(study.views, calibration.shifts_px))
+                                   max_shift_px=max_shift_px, estimate_scale=options.calibrate_scale)
+    views = tuple(_corrected_view(v, du, dv, f)
+                  for v, (du, dv), f in zip(study.views, calibration.shifts_px, calibration.scales))
     return replace(study, views=views), calibration
 
 
@@ -154,7 +158,8 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
         "study": str(study.root) if study.root is not None else None,
         "options": {"resolution": result.lattice.resolution, "threshold_px": options.threshold_px,
                     "engine": options.engine, "centerlines": options.centerlines, "device": options.device,
-                    "min_views": options.min_views, "calibrate": options.calibrate, "preset": options.preset},
+                    "min_views": options.min_views, "calibrate": options.calibrate,
+                    "calibrate_scale": options.calibrate_scale, "preset": options.preset},
         "engine": result.engine,
         "cube_of_interest": {"half_edge_mm": result.lattice.half_edge_mm, "resolution": result.lattice.resolution,
                              "lattice_spacing_mm": result.lattice_spacing_mm, "n_lattice_points": result.lattice.n_points},

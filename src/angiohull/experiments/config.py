@@ -126,6 +126,7 @@ class ReconstructionSettings(_Model):
     threshold_px: float = Field(1.0, gt=0, description="strict distance threshold, px")
     preset: Literal["paper", "refined"] = Field("paper", description="the method as published, or refined (beyond the paper)")
     calibrate: bool = Field(False, description="estimate per-view image shifts first (beyond the paper)")
+    calibrate_scale: bool = Field(False, description="also per-view image scales (implies calibrate; 3+ views)")
     min_views: Optional[int] = Field(None, ge=1, description="robust carving: views that must keep a point (default all)")
 
     @field_validator("threshold_px")

@@ -46,8 +46,8 @@ from skimage.morphology import thin
 from ..geometry import Projection
 from .epipolar import EpipolarPencil, ray_directions
 
-__all__ = ["Centreline", "match_pair", "fit_view_shift", "polish_shifts", "consistency_cost", "fit_jointly",
-           "PAIRS_PER_VIEW"]
+__all__ = ["Centreline", "match_pair", "fit_view_shift", "fit_view_scale", "polish_shifts", "consistency_cost",
+           "fit_jointly", "PAIRS_PER_VIEW"]
 
 RADIUS_TOLERANCE = 0.3
 """Two matched centreline pixels must show the same vessel radius (mm, at the triangulated point)
@@ -340,3 +340,32 @@ def fit_jointly(projections: Sequence[Projection], centre_lines: Sequence[Centre
             if not improved:
                 break
     return shifts.reshape(-1, 2), best
+
+
+def fit_view_scale(projections: Sequence[Projection], centre_lines: Sequence[Centreline], shifts_px, view: int,
+                   factors: Sequence[float], *, cutoff_px: float = 2.0) -> tuple[float, np.ndarray, float, float]:
+    """The image scale of one view (about its principal point, :meth:`Projection.magnified`) that
+    brings the points triangulated from the other views onto its centreline.
+
+    ``projections`` are the views as they stand (any scale already applied), ``shifts_px`` their
+    shifts. For every factor in ``factors`` (relative to the view as it stands) the view's shift is
+    refitted (:func:`fit_view_shift`, from the shift that keeps the projected points' weighted
+    centroid in place, within 1 px of it). Returns ``(factor, shift (2,), cost, cost at factor 1)``;
+    ``(1, shift, cost, cost)`` when nothing is triangulated.
+    """
+    shifts = np.asarray(shifts_px, dtype=float)
+    points, weights = _triangulated_for(_pairs_for(view, projections), projections, centre_lines, shifts)
+    here = projections[view].shifted(*shifts[view])
+    if len(points) == 0 or centre_lines[view].tree is None:
+        return 1.0, shifts[view].copy(), float(cutoff_px ** 2), float(cutoff_px ** 2)
+    uv_here = here.project(points)
+    centroid = np.average(uv_here, axis=0, weights=weights)
+    _, cost_here = fit_view_shift(centre_lines[view], uv_here, weights, (0.0, 0.0), reach_px=1, cutoff_px=cutoff_px)
+    best = (cost_here, 1.0, shifts[view].copy())
+    for factor in factors:
+        uv = projections[view].magnified(float(factor)).shifted(*shifts[view]).project(points)
+        start = centroid - np.average(uv, axis=0, weights=weights)
+        shift, cost = fit_view_shift(centre_lines[view], uv, weights, start, reach_px=1, cutoff_px=cutoff_px)
+        if cost < best[0]:
+            best = (cost, float(factor), shifts[view] + shift)
+    return best[1], best[2], best[0], cost_here
