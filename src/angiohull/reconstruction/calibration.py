@@ -50,8 +50,9 @@ that maximises that agreement (three views or more; two views: see the end):
    (source-to-image distance, pixel spacing) scales a view's image about its principal point.
    Each view in turn is fitted to the others' triangulated centrelines with its image scaled by
    factors within ``1 -+ SCALE_RANGE`` (:func:`.centreline_fit.fit_view_scale`, its shift refitted
-   for each); the view whose cost drops most (by ``_MIN_SCALE_GAIN`` at least) takes its best
-   factor, the shifts are fitted again (sweeps, gauge, joint fit), and the next round starts. A
+   for each); of the views whose own cost drops by ``_MIN_SCALE_GAIN`` at least, the one whose
+   best factor lowers the summed cost of all views most (by ``_MIN_SCALE_GAIN`` at least) takes it,
+   the shifts are fitted again (sweeps, gauge, joint fit), and the next round starts. A
    view with the wrong scale can mislead the shift search into moving other views, so a second
    route estimates the scales at the header's shifts first and then runs steps 1-6 on the
    rescaled views. The route whose views agree best is kept, and only when it lowers the summed
@@ -108,7 +109,7 @@ _TIE_PX = 2.0  # gauge alternatives moving as many views and at most this much l
 _JOINT_CUTOFF_PX = 1.0  # after the sweeps the views agree within about a pixel: farther matches are wrong ones
 _MIN_COVERAGE_GAIN = 0.001
 _SCALE_STEP = 0.02
-_MIN_SCALE_GAIN = 0.02  # a scale change must lower the view's centreline fit cost by this fraction
+_MIN_SCALE_GAIN = 0.02  # a scale change must lower the view's own and the summed centreline cost by this fraction
 _MIN_SCALE_EVIDENCE = 0.05  # ... and the outcome the summed cost (cutoff _JOINT_CUTOFF_PX) against shifts alone  # a move must raise the mean mask coverage by more than this
 
 
@@ -140,7 +141,9 @@ class Calibration:
             "method": ("greedy leave-one-out support maximisation, coarse to fine, then a fit to the other views' "
                        "triangulated centrelines, view by view and then all views at once; gauge: fewest views "
                        "moved, then least total shift; near-ties: the alternative whose centrelines agree best; "
-                       "two views: agreement of the masks' epipolar planes"),
+                       "two views: agreement of the masks' epipolar planes; scales (when estimated): each view's "
+                       "image scale fitted to the centrelines, kept when it lowers their summed cost by "
+                       f"{_MIN_SCALE_EVIDENCE:.0%} against shifts alone"),
             "shifts_px": {n: {"du": s[0], "dv": s[1]} for n, s in zip(names, self.shifts_px)},
             "scales": dict(zip(names, self.scales)),
             "gauge_translation_mm": list(self.gauge_translation_mm),
@@ -529,8 +532,13 @@ def _scale_views(projections: Sequence[Projection], centre_lines: Sequence[Centr
     shifts = np.array(shifts, dtype=float)
     translation = np.zeros(3)
     coarse = 1.0 + np.arange(-SCALE_RANGE, SCALE_RANGE + _SCALE_STEP / 2, _SCALE_STEP)
+    def summed(scales_now, shifts_now) -> float:
+        return consistency_cost([p.magnified(f) for p, f in zip(projections, scales_now)], centre_lines, shifts_now,
+                                cutoff_px=_JOINT_CUTOFF_PX)
+
     for _ in range(n):
         current = [p.magnified(f) for p, f in zip(projections, scales)]
+        cost_now = summed(scales, shifts)
         best = None
         for v in range(n):
             factor, shift, cost, cost_here = fit_view_scale(current, centre_lines, shifts, v, coarse / scales[v])
@@ -539,10 +547,16 @@ def _scale_views(projections: Sequence[Projection], centre_lines: Sequence[Centr
                 factor_fine, shift_fine, cost_fine, _ = fit_view_scale(current, centre_lines, shifts, v, fine)
                 if cost_fine < cost:
                     factor, shift, cost = factor_fine, shift_fine, cost_fine
-            gain = (cost_here - cost) / cost_here if cost_here > 0 else 0.0
-            if factor != 1.0 and (best is None or gain > best[0]):
-                best = (gain, v, factor, shift)
-        if best is None or best[0] < _MIN_SCALE_GAIN:
+            if factor == 1.0 or cost >= (1.0 - _MIN_SCALE_GAIN) * cost_here:
+                continue
+            # judged by all views: a wrong view's scale also corrupts the points the others are fitted to
+            trial_scales, trial_shifts = scales.copy(), shifts.copy()
+            trial_scales[v] *= factor
+            trial_shifts[v] = shift
+            total = summed(trial_scales, trial_shifts)
+            if best is None or total < best[0]:
+                best = (total, v, factor, shift)
+        if best is None or best[0] > (1.0 - _MIN_SCALE_GAIN) * cost_now:
             break
         _, v, factor, shift = best
         scales[v] *= factor
