@@ -45,7 +45,6 @@ that maximises that agreement (three views or more; two views: see the end):
    the object's depth in the other views, and so its magnification there (about 0.6 % for 20 px):
    each alternative is fitted jointly (whatever the number of views) and the one with the lowest
    summed cost is kept.
-
 7. **Scales** (``estimate_scale``, three views or more): a magnification the header has wrong
    (source-to-image distance, pixel spacing) scales a view's image about its principal point.
    Each view in turn is fitted to the others' triangulated centrelines with its image scaled by
@@ -107,10 +106,10 @@ near-tie of the gauge is always decided that way."""
 _MOVED_PX = 1.0  # a view whose correction is shorter than this counts as unmoved (gauge choice)
 _TIE_PX = 2.0  # gauge alternatives moving as many views and at most this much longer in total are near-ties
 _JOINT_CUTOFF_PX = 1.0  # after the sweeps the views agree within about a pixel: farther matches are wrong ones
-_MIN_COVERAGE_GAIN = 0.001
-_SCALE_STEP = 0.02
+_MIN_COVERAGE_GAIN = 0.001  # a move must raise the mean mask coverage by more than this
+_SCALE_STEP = 0.02  # coarse step of the scale search
 _MIN_SCALE_GAIN = 0.02  # a scale change must lower the view's own and the summed centreline cost by this fraction
-_MIN_SCALE_EVIDENCE = 0.05  # ... and the outcome the summed cost (cutoff _JOINT_CUTOFF_PX) against shifts alone  # a move must raise the mean mask coverage by more than this
+_MIN_SCALE_EVIDENCE = 0.05  # the scaled outcome must lower the summed cost by this fraction against shifts alone
 
 
 def shift_projection(projection: Projection, du_px: float, dv_px: float) -> Projection:
