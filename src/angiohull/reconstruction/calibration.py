@@ -427,8 +427,9 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
         history: list[tuple[int, int, float, float, float]] = []
         final, translation = _gauge(moved, jacobians)
     else:
-        final, translation, history, centre_lines = _support_then_centrelines(
-            projections, masks, jacobians, half_edge, threshold_px, max_shift_px, min_gain, rounds)
+        centre_lines = [Centreline(m) for m in masks]
+        final, translation, history = _support_then_centrelines(
+            projections, masks, centre_lines, jacobians, half_edge, threshold_px, max_shift_px, min_gain, rounds)
         if estimate_scale:
             scales, final, translation, history = _with_scales(
                 projections, masks, centre_lines, (final, translation, history), half_edge, threshold_px, max_shift_px,
@@ -449,10 +450,10 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
     )
 
 
-def _support_then_centrelines(projections, masks, jacobians, half_edge, threshold_px, max_shift_px, min_gain,
-                              rounds) -> tuple[np.ndarray, np.ndarray, list]:
+def _support_then_centrelines(projections, masks, centre_lines, jacobians, half_edge, threshold_px, max_shift_px,
+                              min_gain, rounds) -> tuple[np.ndarray, np.ndarray, list]:
     """Steps 1-6 of the module notes (three views or more): the shifts in the gauge, the 3D
-    translation the gauge steps moved the object by, the greedy history and the centrelines."""
+    translation the gauge steps moved the object by, and the greedy history."""
     n = len(projections)
     levels = [(_Level(projections, masks, half_edge, k, threshold_px), max(2, int(np.ceil(max_shift_px * f))))
               for k, f in CALIBRATION_LEVELS]
@@ -481,12 +482,17 @@ def _support_then_centrelines(projections, masks, jacobians, half_edge, threshol
     last = levels[-1][0]
     shifts, history = max(outcomes, key=lambda o: last.coverage(o[0]))
     final, translation = _gauge(shifts, jacobians)
-    centre_lines = [Centreline(m) for m in masks]
     final = polish_shifts(projections, centre_lines, final)
     final, further = _gauge(final, jacobians)  # again, after the fit; the object moved by both
     translation = translation + further
     final, further = _fit_jointly(projections, centre_lines, final, jacobians)
-    return final, translation + further, history, centre_lines
+    return final, translation + further, history
+
+
+def _scaled_cost(projections, centre_lines, scales, shifts) -> float:
+    """The summed centreline cost (cutoff _JOINT_CUTOFF_PX) of the views scaled and shifted."""
+    return consistency_cost([p.magnified(f) for p, f in zip(projections, scales)], centre_lines, shifts,
+                            cutoff_px=_JOINT_CUTOFF_PX)
 
 
 def _with_scales(projections, masks, centre_lines, shifts_only, half_edge, threshold_px, max_shift_px, min_gain,
@@ -496,9 +502,7 @@ def _with_scales(projections, masks, centre_lines, shifts_only, half_edge, thres
     n = len(projections)
 
     def cost(outcome) -> float:
-        scales, shifts = outcome[0], outcome[1]
-        return consistency_cost([p.magnified(f) for p, f in zip(projections, scales)], centre_lines, shifts,
-                                cutoff_px=_JOINT_CUTOFF_PX)
+        return _scaled_cost(projections, centre_lines, outcome[0], outcome[1])
 
     plain = (np.ones(n), *shifts_only)
     # Route 1: scales after the shifts.
@@ -509,8 +513,9 @@ def _with_scales(projections, masks, centre_lines, shifts_only, half_edge, thres
     first, _, _ = _scale_views(projections, centre_lines, np.zeros((n, 2)))
     if np.any(first != 1.0):
         rescaled = [p.magnified(f) for p, f in zip(projections, first)]
-        shifts, translation, history, _ = _support_then_centrelines(
-            rescaled, masks, [_jacobian(p) for p in rescaled], half_edge, threshold_px, max_shift_px, min_gain, rounds)
+        shifts, translation, history = _support_then_centrelines(
+            rescaled, masks, centre_lines, [_jacobian(p) for p in rescaled], half_edge, threshold_px, max_shift_px,
+            min_gain, rounds)
         more, shifts, further = _scale_views(rescaled, centre_lines, shifts)
         routes.append((first * more, shifts, translation + further, history))
     routes = [r for r in routes if np.any(r[0] != 1.0)]
@@ -531,13 +536,9 @@ def _scale_views(projections: Sequence[Projection], centre_lines: Sequence[Centr
     shifts = np.array(shifts, dtype=float)
     translation = np.zeros(3)
     coarse = 1.0 + np.arange(-SCALE_RANGE, SCALE_RANGE + _SCALE_STEP / 2, _SCALE_STEP)
-    def summed(scales_now, shifts_now) -> float:
-        return consistency_cost([p.magnified(f) for p, f in zip(projections, scales_now)], centre_lines, shifts_now,
-                                cutoff_px=_JOINT_CUTOFF_PX)
-
     for _ in range(n):
         current = [p.magnified(f) for p, f in zip(projections, scales)]
-        cost_now = summed(scales, shifts)
+        cost_now = _scaled_cost(projections, centre_lines, scales, shifts)
         best = None
         for v in range(n):
             factor, shift, cost, cost_here = fit_view_scale(current, centre_lines, shifts, v, coarse / scales[v])
@@ -552,7 +553,7 @@ def _scale_views(projections: Sequence[Projection], centre_lines: Sequence[Centr
             trial_scales, trial_shifts = scales.copy(), shifts.copy()
             trial_scales[v] *= factor
             trial_shifts[v] = shift
-            total = summed(trial_scales, trial_shifts)
+            total = _scaled_cost(projections, centre_lines, trial_scales, trial_shifts)
             if best is None or total < best[0]:
                 best = (total, v, factor, shift)
         if best is None or best[0] > (1.0 - _MIN_SCALE_GAIN) * cost_now:
