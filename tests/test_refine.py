@@ -82,3 +82,50 @@ def test_unknown_preset():
     case = make_case(SynthOptions(seed=0, views="AP; LAO 90"))
     with pytest.raises(ReconstructionError, match="unknown preset"):
         reconstruct([v.projection for v in case.views], [v.mask for v in case.views], preset="sharp")
+
+
+def test_a_view_that_sees_the_vessel_overlapped_does_not_erase_it():
+    # A straight tube seen from four directions. In one view a second vessel runs alongside and
+    # touches it, so that view's mask is one wide band whose 2D centreline lies off the tube's axis.
+    # Requiring the centreline in *every* view leaves that stretch without axis points and the
+    # radius check deletes the tube there; the default (3 views, refine.REFINED.axis_views) keeps it.
+    import dataclasses
+
+    from angiohull.reconstruction.refine import refine_hull
+
+    start, end, radius = np.array([-30.0, 0.0, 0.0]), np.array([30.0, 0.0, 0.0]), 2.5
+    phantom = TubePhantom((Tube(np.stack([start, end]), radius),), "rod")
+    carms = [CArmGeometry(a, b, 1200.0, 800.0, (0.35, 0.35), (512, 512))
+             for a, b in ((0, 0), (0, 90), (45, 45), (-45, 30))]
+    projections = [c.projection() for c in carms]
+    masks = [phantom.silhouette(p) for p in projections]
+    rows = np.flatnonzero(masks[0].any(axis=1))
+    band = masks[0].copy()
+    band[rows.max() + 1: rows.max() + 1 + 3 * len(rows), :] = masks[0][rows.min()]  # the neighbour, below
+    masks[0] = band
+    carved = reconstruct(projections, masks, resolution=256, centerlines=False)
+    deep = carved.vessel_points_mm[(np.abs(carved.vessel_points_mm[:, 0]) < 25)
+                                   & (_axis_distance(carved.vessel_points_mm, start, end) < radius - 2 * carved.lattice_spacing_mm)]
+    assert len(deep) > 100
+
+    def kept_share(settings):
+        points, _ = refine_hull(carved.vessel_points_mm, carved.lattice, projections, masks, settings)
+        kept = {tuple(p) for p in np.round(points, 6)}
+        return np.mean([tuple(p) in kept for p in np.round(deep, 6)])
+
+    assert kept_share(dataclasses.replace(REFINED, axis_views=4)) < 0.5
+    assert kept_share(REFINED) == 1.0
+
+
+def test_refined_gains_with_more_views():
+    # With 6 views the plain hull at the refined lattice (K = 256) is already tight; the refined
+    # steps must not undo that (they lost 24 points on this tree when every view had to show the
+    # axis point on its centreline; measured over seeds 0-11: 83.4 % then, 94.4 % now, 94.3 % plain).
+    views = "RAO 30 CRA 30; LAO 60 CRA 30; RAO 30 CAU 30; LAO 45 CAU 30; AP; LAO 90"
+    case = make_case(SynthOptions(seed=0, views=views, rasteriser="paper"))
+    projections, masks = [v.projection for v in case.views], [v.mask for v in case.views]
+    plain = scores_3d(reconstruct(projections, masks, resolution=256, centerlines=False).vessel_points_mm,
+                      case.surface_points_mm)
+    refined = scores_3d(reconstruct(projections, masks, preset="refined", centerlines=False).vessel_points_mm,
+                        case.surface_points_mm)
+    assert refined.dice3d >= plain.dice3d - 1.0
