@@ -9,7 +9,11 @@ steps that stay interpretable:
    dropped and background pixels with at least 5 are filled, before carving: isolated false
    positives go, pinholes close, and a vessel that lost pixels at random keeps the rest.
 2. **Connectivity**: the tree is one structure; connected parts of the hull (26-neighbourhood on
-   the lattice) holding less than ``component_fraction`` of its points are dropped.
+   the lattice, after growing each part by ``bridge_cells`` lattice spacings, so that gaps of up
+   to two missing lattice points are bridged) holding less than ``component_fraction`` of its
+   points are dropped. A lattice cell projects to about 2 px at K = 256, more than the 1 px
+   threshold, so a thin vessel, or one whose mask lost pixels, is sampled with gaps; without the
+   bridge such a stretch counts as a separate part.
 3. **Radius consistency**: *axis points* are the hull points whose projection lies on the 2D
    centreline (Guo–Hall thinning of the mask), within the projection of a lattice cell, in at
    least ``axis_views`` views (3; every view when there are fewer): they stand for the vessels' 3D
@@ -75,6 +79,9 @@ class RefineSettings:
     min_neighbours: int = 2  # clean_mask: a vessel pixel needs this many vessel neighbours (of 8)
     fill_neighbours: int = 5  # clean_mask: a background pixel with this many vessel neighbours is filled
     component_fraction: float = 0.05  # drop connected parts of the hull smaller than this fraction
+    # connectivity: parts of the hull count as connected when, grown by this many lattice spacings,
+    # they touch (1: gaps of up to two missing lattice points; 0: touching parts only)
+    bridge_cells: int = 1
     slack_cells: float = 0.5  # tolerance of the radius check, in lattice spacings
     # an axis point lies on the 2D centreline in at least this many views (in every view when there
     # are fewer): every view, as first built, lost 4-11 Dice points with 4 and 6 views
@@ -275,7 +282,9 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
         return np.round(index).astype(np.int64) - low if rounded else index
 
     # 2. connectivity
-    labels, _ = ndi.label(volume, structure=_TWENTY_SIX)
+    bridged = ndi.binary_dilation(volume, _TWENTY_SIX, iterations=settings.bridge_cells) if settings.bridge_cells else volume
+    labels, _ = ndi.label(bridged, structure=_TWENTY_SIX)
+    labels[~volume] = 0
     sizes = np.bincount(labels.ravel())
     sizes[0] = 0
     big = sizes[labels[tuple(local.T)]] >= settings.component_fraction * len(points_mm)
