@@ -80,7 +80,8 @@ from scipy.fft import irfft2, next_fast_len, rfft2
 from ..errors import ReconstructionError
 from ..geometry import Projection, cube_half_edge_mm
 from .cube import Lattice
-from .centreline_fit import Centreline, consistency_cost, fit_jointly, fit_view_scale, polish_shifts
+from .centreline_fit import (Centreline, consistency_cost, fit_jointly, fit_scales_jointly, fit_view_scale,
+                             polish_shifts)
 from .epipolar import two_view_shift
 from .engines import ENGINES
 
@@ -110,6 +111,8 @@ _MIN_COVERAGE_GAIN = 0.001  # a move must raise the mean mask coverage by more t
 _SCALE_STEP = 0.02  # coarse step of the scale search
 _MIN_SCALE_GAIN = 0.02  # a scale change must lower the view's own and the summed centreline cost by this fraction
 _MIN_SCALE_EVIDENCE = 0.05  # the scaled outcome must lower the summed cost by this fraction against shifts alone
+# starting factors of the joint scale fits (each converges from about 0.05 away; SCALE_RANGE is covered)
+_SCALE_STARTS = (0.9, 0.95, 1.05, 1.1)
 
 
 def shift_projection(projection: Projection, du_px: float, dv_px: float) -> Projection:
@@ -499,6 +502,75 @@ def _with_scales(projections, masks, centre_lines, shifts_only, half_edge, thres
                  rounds) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
     """Step 7 of the module notes: ``(scales, shifts, translation, history)``, given the shift-only
     outcome ``(shifts, translation, history)`` of steps 1-6."""
+    if len(projections) <= JOINT_FIT_MAX_VIEWS:
+        return _scales_jointly(projections, centre_lines, shifts_only)
+    return _scales_view_by_view(projections, masks, centre_lines, shifts_only, half_edge, threshold_px, max_shift_px,
+                                min_gain, rounds)
+
+
+def _scale_candidates(current: Sequence[Projection], centre_lines: Sequence[Centreline], starts, views) -> list[int]:
+    """The views among ``views`` whose own centreline cost some image scale within SCALE_RANGE lowers
+    by _MIN_SCALE_GAIN at least, from any of the ``starts`` (shifts): a quick screen, one view at a
+    time against the others as they stand."""
+    coarse = 1.0 + np.arange(-SCALE_RANGE, SCALE_RANGE + _SCALE_STEP / 2, _SCALE_STEP)
+    found = []
+    for v in views:
+        for shifts in starts:
+            _, _, cost, cost_here = fit_view_scale(current, centre_lines, shifts, v, coarse)
+            if cost <= (1.0 - _MIN_SCALE_GAIN) * cost_here:
+                found.append(v)
+                break
+    return found
+
+
+def _scales_jointly(projections, centre_lines, shifts_only) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
+    """Step 7 with up to JOINT_FIT_MAX_VIEWS views: per round, every candidate view's scale is
+    fitted together with all views' shifts (:func:`.centreline_fit.fit_scales_jointly`) from each
+    factor in _SCALE_STARTS, starting from the shift-only outcome and from the header's shifts (a
+    wrong scale can mislead the shift search into moving other views). The lowest summed cost wins
+    the round if it lowers the cost by _MIN_SCALE_EVIDENCE against shifts alone (first round) or by
+    _MIN_SCALE_GAIN against the previous round."""
+    n = len(projections)
+    shifts, translation, history = shifts_only
+    scales = np.ones(n)
+    best_cost = _scaled_cost(projections, centre_lines, scales, shifts)
+    starts = [(np.asarray(shifts, dtype=float), np.asarray(translation, dtype=float)), (np.zeros((n, 2)), np.zeros(3))]
+    needed = 1.0 - _MIN_SCALE_EVIDENCE
+    while True:
+        current = [p.magnified(f) for p, f in zip(projections, scales)]
+        scaled = [v for v in range(n) if scales[v] != 1.0]
+        candidates = _scale_candidates(current, centre_lines, [s for s, _ in starts],
+                                       [v for v in range(n) if v not in scaled])
+        trials = []
+        for v in candidates:
+            for factor in _SCALE_STARTS:
+                trial = scales.copy()
+                trial[v] *= factor
+                gauge = np.vstack([_jacobian(p.magnified(f)) for p, f in zip(projections, trial)])
+                for start, start_translation in starts:
+                    fitted_scales, fitted, cost = fit_scales_jointly(projections, centre_lines, trial, start,
+                                                                     scaled + [v], gauge, cutoff_px=_JOINT_CUTOFF_PX)
+                    trials.append((cost, fitted_scales, fitted, start_translation))
+        if not trials:
+            break
+        cost, fitted_scales, fitted, start_translation = min(trials, key=lambda t: t[0])
+        if cost > needed * best_cost:
+            break
+        rescaled = [p.magnified(f) for p, f in zip(projections, fitted_scales)]
+        jacobians = [_jacobian(p) for p in rescaled]
+        fitted, further = _gauge(fitted, jacobians)
+        fitted, more = _fit_jointly(rescaled, centre_lines, fitted, jacobians)  # near-ties, as in step 6
+        scales, shifts, translation = fitted_scales, fitted, start_translation + further + more
+        best_cost = _scaled_cost(projections, centre_lines, scales, shifts)
+        starts = [(shifts, translation)]
+        needed = 1.0 - _MIN_SCALE_GAIN
+    return scales, shifts, translation, history
+
+
+def _scales_view_by_view(projections, masks, centre_lines, shifts_only, half_edge, threshold_px, max_shift_px,
+                         min_gain, rounds) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
+    """Step 7 with more than JOINT_FIT_MAX_VIEWS views (the joint fits would take minutes): scales
+    one view at a time (:func:`_scale_views`), by two routes."""
     n = len(projections)
 
     def cost(outcome) -> float:
