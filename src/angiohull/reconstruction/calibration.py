@@ -47,16 +47,21 @@ that maximises that agreement (three views or more; two views: see the end):
    summed cost is kept.
 7. **Scales** (``estimate_scale``, three views or more): a magnification the header has wrong
    (source-to-image distance, pixel spacing) scales a view's image about its principal point.
-   Each view in turn is fitted to the others' triangulated centrelines with its image scaled by
-   factors within ``1 -+ SCALE_RANGE`` (:func:`.centreline_fit.fit_view_scale`, its shift refitted
-   for each); of the views whose own cost drops by ``_MIN_SCALE_GAIN`` at least, the one whose
-   best factor lowers the summed cost of all views most (by ``_MIN_SCALE_GAIN`` at least) takes it,
-   the shifts are fitted again (sweeps, gauge, joint fit), and the next round starts. A
-   view with the wrong scale can mislead the shift search into moving other views, so a second
-   route estimates the scales at the header's shifts first and then runs steps 1-6 on the
-   rescaled views. The route whose views agree best is kept, and only when it lowers the summed
-   cost by ``_MIN_SCALE_EVIDENCE`` against the shifts alone: a true 5-10 % scale lowers it by
-   16-18 %, while spurious scales on the authors' studies lowered it by 0.5 %.
+   A scale and a shift of a view trade against each other when its vessels lie off the principal
+   point, so the scales are fitted together with all views' shifts
+   (:func:`.centreline_fit.fit_scales_jointly`, which moves a scale about the vessels' centroid).
+   Per round: the candidate views are those whose own centreline cost some factor within
+   ``1 -+ SCALE_RANGE`` lowers by ``_MIN_SCALE_GAIN`` (a quick screen,
+   :func:`.centreline_fit.fit_view_scale`); each is fitted jointly from every factor in
+   ``_SCALE_STARTS``, starting both from the shift-only outcome and from the header's shifts (a
+   wrongly scaled view can mislead the shift search into moving other views). The lowest summed
+   cost wins the round, followed by the gauge and step 6 (near-ties), if it lowers the summed cost
+   by ``_MIN_SCALE_EVIDENCE`` against the shifts alone (first round) or by ``_MIN_SCALE_GAIN``
+   against the previous round; a true 10 % scale lowered it by 10-16 % (4 trees), while spurious
+   scales on the authors' studies lowered it by 0.5 %. With more than ``JOINT_FIT_MAX_VIEWS`` views the joint
+   fits would take minutes: the scales are then chosen view by view (:func:`_scale_views`), both
+   after the shift search and at the header's shifts followed by steps 1-6, and the route whose
+   views agree best is kept under the same evidence rule.
 
 **Two views** determine one number only (four shift components, three of them a common 3D
 translation): view 1's shift across its epipolar lines. The hull of one view is a whole cone, so
@@ -94,8 +99,10 @@ COVERAGE_RESOLUTION = 256
 """Lattice resolution at which the reported coverage before and after is measured."""
 
 SCALE_RANGE = 0.15
-"""With ``estimate_scale``, a view's image scale is searched within ``1 -+ SCALE_RANGE``: in steps of
-``_SCALE_STEP`` (0.02), then of 0.005 and 0.0025 around the best."""
+"""With ``estimate_scale``, a view's image scale is screened within ``1 -+ SCALE_RANGE`` in steps of
+``_SCALE_STEP`` (0.02) and then fitted jointly with the shifts from the factors in ``_SCALE_STARTS``
+(view by view, in steps of 0.005 and 0.0025 around the best, with more than JOINT_FIT_MAX_VIEWS
+views)."""
 
 JOINT_FIT_MAX_VIEWS = 6
 """Up to this many views the shifts from the view-by-view sweeps are refined by minimising the summed
