@@ -6,7 +6,7 @@ import pytest
 from angiohull.geometry import CArmGeometry
 from angiohull.reconstruction.calibration import _jacobian
 from angiohull.reconstruction.centreline_fit import (Centreline, consistency_cost, fit_jointly, fit_scales_jointly,
-                                                       fit_view_scale, fit_view_shift, match_pair, polish_shifts)
+                                                       fit_view_shift, match_pair, polish_shifts)
 from angiohull.synthetic import SynthOptions, make_case
 
 from _cases import geometry_error_px

@@ -104,8 +104,9 @@ def test_a_view_that_sees_the_vessel_overlapped_does_not_erase_it():
     band[rows.max() + 1: rows.max() + 1 + 3 * len(rows), :] = masks[0][rows.min()]  # the neighbour, below
     masks[0] = band
     carved = reconstruct(projections, masks, resolution=256, centerlines=False)
-    deep = carved.vessel_points_mm[(np.abs(carved.vessel_points_mm[:, 0]) < 25)
-                                   & (_axis_distance(carved.vessel_points_mm, start, end) < radius - 2 * carved.lattice_spacing_mm)]
+    points = carved.vessel_points_mm
+    deep = points[(np.abs(points[:, 0]) < 25)
+                  & (_axis_distance(points, start, end) < radius - 2 * carved.lattice_spacing_mm)]
     assert len(deep) > 100
 
     def kept_share(settings):

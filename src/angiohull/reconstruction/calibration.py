@@ -58,10 +58,10 @@ that maximises that agreement (three views or more; two views: see the end):
    cost wins the round, followed by the gauge and step 6 (near-ties), if it lowers the summed cost
    by ``_MIN_SCALE_EVIDENCE`` against the shifts alone (first round) or by ``_MIN_SCALE_GAIN``
    against the previous round; a true 10 % scale lowered it by 10-16 % (4 trees), while spurious
-   scales on the authors' studies lowered it by 0.5 %. With more than ``JOINT_FIT_MAX_VIEWS`` views the joint
-   fits would take minutes: the scales are then chosen view by view (:func:`_scale_views`), both
-   after the shift search and at the header's shifts followed by steps 1-6, and the route whose
-   views agree best is kept under the same evidence rule.
+   scales on the authors' studies lowered it by 0.5 %. With more than ``JOINT_FIT_MAX_VIEWS``
+   views the joint fits would take minutes: the scales are then chosen view by view
+   (:func:`_scale_views`), both after the shift search and at the header's shifts followed by
+   steps 1-6, and the route whose views agree best is kept under the same evidence rule.
 
 **Two views** determine one number only (four shift components, three of them a common 3D
 translation): view 1's shift across its epipolar lines. The hull of one view is a whole cone, so

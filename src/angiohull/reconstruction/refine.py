@@ -282,7 +282,9 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
         return np.round(index).astype(np.int64) - low if rounded else index
 
     # 2. connectivity
-    bridged = ndi.binary_dilation(volume, _TWENTY_SIX, iterations=settings.bridge_cells) if settings.bridge_cells else volume
+    bridged = volume
+    if settings.bridge_cells:
+        bridged = ndi.binary_dilation(volume, _TWENTY_SIX, iterations=settings.bridge_cells)
     labels, _ = ndi.label(bridged, structure=_TWENTY_SIX)
     labels[~volume] = 0
     sizes = np.bincount(labels.ravel())
