@@ -129,3 +129,15 @@ def test_cli_rejects_a_bad_config_before_any_work(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "bad.yaml: design.trees: got 0 (int)" in err
     assert not out.exists()
+
+
+def test_calibrate_scale_implies_calibrate():
+    # Scales are estimated together with the shifts, so the one option turns on the other, in the
+    # experiment configuration and in the study options alike.
+    from angiohull.experiments.config import ReconstructionSettings
+    from angiohull.workflow import ReconstructOptions
+
+    assert ReconstructionSettings(calibrate_scale=True).calibrate is True
+    assert ReconstructionSettings().calibrate is False
+    assert ReconstructOptions(calibrate_scale=True).calibrate is True
+    assert ReconstructOptions().calibrate is False

@@ -139,7 +139,7 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
     from . import workflow
 
     calibration = None
-    if options.calibrate or options.calibrate_scale:
+    if options.calibrate:
         what = "shifts and scales" if options.calibrate_scale else "shifts"
         progress(f"calibrating {len(study.views)} views (per-view image {what})")
         study, calibration = workflow.calibrate_study(study, options)
@@ -181,7 +181,7 @@ def _cmd_reconstruct(args) -> int:
     progress = _Progress(not args.quiet)
     study = load_study(args.study)
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines, args.device,
-                                 min_views=args.min_views, calibrate=args.calibrate or args.calibrate_scale,
+                                 min_views=args.min_views, calibrate=args.calibrate,
                                  calibrate_scale=args.calibrate_scale, preset=args.preset)
     _, report, _ = _run_study(study, options, args.output, progress, figure=not args.no_figure, score=False)
     if not args.quiet:
@@ -200,7 +200,7 @@ def _cmd_evaluate(args) -> int:
     if study.ground_truth_mm is None:
         raise AngiohullError(f"{args.study}: the study has no ground truth; add 'ground_truth: gt.npy' to its study.yaml")
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=False, device=args.device,
-                                 min_views=args.min_views, calibrate=args.calibrate or args.calibrate_scale,
+                                 min_views=args.min_views, calibrate=args.calibrate,
                                  calibrate_scale=args.calibrate_scale, preset=args.preset)
     _, _, scores = _run_study(study, options, None, progress, figure=False, score=True)
     if args.json:

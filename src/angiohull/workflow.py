@@ -41,6 +41,10 @@ class ReconstructOptions:
     calibrate_scale: bool = False  # also per-view image scales (implies calibrate; three views or more)
     preset: str = "paper"  # "paper" (as published) or "refined" (reconstruction.refine)
 
+    def __post_init__(self) -> None:
+        if self.calibrate_scale and not self.calibrate:  # scales are estimated with the shifts
+            object.__setattr__(self, "calibrate", True)
+
 
 def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOptions()) -> ReconstructionResult:
     """Reconstruct a loaded study with the given options (views in the study's order)."""

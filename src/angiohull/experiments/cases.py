@@ -404,7 +404,7 @@ def _score_case(params: dict[str, Any], row: dict[str, Any]) -> None:
             raise AngiohullError(f"view {name}: the corruptions erased every vessel pixel")
     options = params["reconstruction"]
     projections = list(inputs.projections)
-    if options.get("calibrate") or options.get("calibrate_scale"):
+    if options.get("calibrate"):
         projections = calibrate_shifts(projections, list(inputs.masks), threshold_px=options["threshold_px"],
                                        estimate_scale=bool(options.get("calibrate_scale"))).corrected(projections)
     result = reconstruct(projections, list(inputs.masks), resolution=options["resolution"],

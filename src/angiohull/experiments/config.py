@@ -134,6 +134,13 @@ class ReconstructionSettings(_Model):
     def _finite_threshold(cls, value: float) -> float:
         return _finite(value, "threshold_px")
 
+    @model_validator(mode="before")
+    @classmethod
+    def _scales_imply_calibrate(cls, data: Any) -> Any:
+        if isinstance(data, dict) and data.get("calibrate_scale") and not data.get("calibrate"):
+            data = {**data, "calibrate": True}
+        return data
+
 
 class GridValues(_Model):
     """``count`` evenly spaced values from ``start`` to ``stop`` (``stop`` included iff ``endpoint``)."""

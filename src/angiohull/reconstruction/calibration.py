@@ -515,15 +515,19 @@ def _with_scales(projections, masks, centre_lines, shifts_only, half_edge, thres
                                 min_gain, rounds)
 
 
+def _coarse_factors() -> np.ndarray:
+    """The scale factors 1 -+ SCALE_RANGE in steps of _SCALE_STEP."""
+    return 1.0 + np.arange(-SCALE_RANGE, SCALE_RANGE + _SCALE_STEP / 2, _SCALE_STEP)
+
+
 def _scale_candidates(current: Sequence[Projection], centre_lines: Sequence[Centreline], starts, views) -> list[int]:
     """The views among ``views`` whose own centreline cost some image scale within SCALE_RANGE lowers
     by _MIN_SCALE_GAIN at least, from any of the ``starts`` (shifts): a quick screen, one view at a
     time against the others as they stand."""
-    coarse = 1.0 + np.arange(-SCALE_RANGE, SCALE_RANGE + _SCALE_STEP / 2, _SCALE_STEP)
     found = []
     for v in views:
         for shifts in starts:
-            _, _, cost, cost_here = fit_view_scale(current, centre_lines, shifts, v, coarse)
+            _, _, cost, cost_here = fit_view_scale(current, centre_lines, shifts, v, _coarse_factors())
             if cost <= (1.0 - _MIN_SCALE_GAIN) * cost_here:
                 found.append(v)
                 break
@@ -614,7 +618,7 @@ def _scale_views(projections: Sequence[Projection], centre_lines: Sequence[Centr
     scales = np.ones(n)
     shifts = np.array(shifts, dtype=float)
     translation = np.zeros(3)
-    coarse = 1.0 + np.arange(-SCALE_RANGE, SCALE_RANGE + _SCALE_STEP / 2, _SCALE_STEP)
+    coarse = _coarse_factors()
     for _ in range(n):
         current = [p.magnified(f) for p, f in zip(projections, scales)]
         cost_now = _scaled_cost(projections, centre_lines, scales, shifts)
