@@ -119,6 +119,21 @@ def test_joint_fit_lowers_the_summed_cost_without_moving_the_object():
     assert geometry_error_px(jacobians, shifts, truth) < 0.3
 
 
+def test_joint_fit_of_some_views_holds_the_others():
+    # The tube of the test above, view 2 moved by (3.6, -2.3) px. Only view 2 may move: views 0 and
+    # 1 keep their (exact) shifts bit for bit, and view 2 comes back to the truth from 4 px away.
+    projections = _views()
+    curve = _curve()
+    truth = np.array([[0.0, 0.0], [0.0, 0.0], [3.6, -2.3]])
+    masks = [_tube_mask(p.shifted(*s), curve, 1.2) for p, s in zip(projections, truth)]
+    centre_lines = [Centreline(m) for m in masks]
+    gauge = np.vstack([_jacobian(p) for p in projections])
+    shifts, cost = fit_jointly(projections, centre_lines, np.zeros((3, 2)), gauge, views=[2], reach_px=4)
+    np.testing.assert_array_equal(shifts[:2], 0.0)
+    assert np.linalg.norm(shifts[2] - truth[2]) < 0.3
+    assert cost == pytest.approx(consistency_cost(projections, centre_lines, shifts))
+
+
 def test_a_scale_that_trades_against_a_shift_is_found_jointly():
     # A generated tree whose view 0 is 10 % too large (its image scaled about the centre, which is
     # the principal point). Its vessels lie off the principal point, so a smaller scale plus a shift

@@ -332,7 +332,8 @@ def _off_gauge_basis(gauge_directions: np.ndarray, size: int) -> np.ndarray:
 
 def fit_jointly(projections: Sequence[Projection], centre_lines: Sequence[Centreline], shifts_px,
                 gauge_directions: np.ndarray, *, cutoff_px: float = 2.0,
-                steps_px: Sequence[float] = (1.0, 0.5, 0.25, 0.1, 0.05), max_passes: int = 20) -> tuple[np.ndarray, float]:
+                steps_px: Sequence[float] = (1.0, 0.5, 0.25, 0.1, 0.05), max_passes: int = 20,
+                views: Sequence[int] | None = None, reach_px: int = 0) -> tuple[np.ndarray, float]:
     """Minimise :func:`consistency_cost` over all views' shifts together (a pattern search).
 
     :func:`polish_shifts` moves one view at a time against the others, which is not a descent on
@@ -342,15 +343,40 @@ def fit_jointly(projections: Sequence[Projection], centre_lines: Sequence[Centre
     columns the common 3D translation produces -- do not explain; each step size is repeated until
     a pass over the basis (both signs) no longer lowers the cost.
 
+    ``views``: only these views' shifts change (default: all); the others are held, and the
+    basis is that of their shift changes which no translation leaving the held views in place
+    explains. ``reach_px``: each changing view first takes the best integer offset within this
+    reach of its start (the summed cost, the other views as they stand), one view after another,
+    before the pattern search (default 0: none).
+
     Returns ``(shifts (N, 2), cost)``.
     """
     shifts = np.asarray(shifts_px, dtype=float).ravel()
-    basis = _off_gauge_basis(gauge_directions, len(shifts))
-    pair_lists = [_pairs_for(v, projections) for v in range(len(projections))]
+    n = len(projections)
+    free = list(range(n)) if views is None else sorted(set(int(v) for v in views))
+    columns = np.array([2 * v + k for v in free for k in (0, 1)], dtype=int)
+    gauge = np.asarray(gauge_directions, dtype=float).reshape(2 * n, -1)
+    held = np.setdiff1d(np.arange(2 * n), columns)
+    if len(held):  # translations that leave the held views in place
+        _, singular, vt = np.linalg.svd(gauge[held], full_matrices=True)
+        rank = int(np.count_nonzero(singular > 1e-9 * max(1.0, float(singular.max(initial=0.0)))))
+        gauge = gauge @ vt[rank:].T
+    local = _off_gauge_basis(gauge[columns], len(columns))
+    basis = np.zeros((len(local), 2 * n))
+    basis[:, columns] = local
+    pair_lists = [_pairs_for(v, projections) for v in range(n)]
 
     def cost(x: np.ndarray) -> float:
         return _summed_cost(projections, centre_lines, x.reshape(-1, 2), pair_lists, cutoff_px)
 
+    offsets = [(du, dv) for du in range(-reach_px, reach_px + 1) for dv in range(-reach_px, reach_px + 1)]
+    for v in free if reach_px > 0 else []:
+        trials = []
+        for offset in offsets:
+            trial = shifts.copy()
+            trial[2 * v:2 * v + 2] += offset
+            trials.append((cost(trial), trial))
+        shifts = min(trials, key=lambda t: t[0])[1]
     shifts, best = _pattern_search(cost, shifts, basis, steps_px, max_passes)
     return shifts.reshape(-1, 2), best
 
