@@ -401,15 +401,17 @@ def _fewer_moved(projections: Sequence[Projection], centre_lines: Sequence[Centr
     of them in place as well (with the others left in place; the translation that best keeps all
     of them is taken out first) and refitting the rest (:func:`.centreline_fit.fit_jointly` on the
     moved views, from the best integer offsets within _FEWER_VIEWS_REACH_PX). The best of these is
-    kept when its summed cost exceeds the current one by at most _FEWER_VIEWS_TOLERANCE times the
-    mean cost per view. Up to JOINT_FIT_MAX_VIEWS views. Returns the shifts and the further 3D
-    translation of the object."""
+    kept when its summed cost exceeds that of the correction given by at most
+    _FEWER_VIEWS_TOLERANCE times the mean cost per view (the allowance is not spent twice: every
+    further view held is judged against the same cost). Up to JOINT_FIT_MAX_VIEWS views. Returns
+    the shifts and the further 3D translation of the object."""
     n = len(projections)
     translation = np.zeros(3)
     if n > JOINT_FIT_MAX_VIEWS:
         return shifts, translation
     gauge = np.vstack(jacobians)
     cost = consistency_cost(projections, centre_lines, shifts, cutoff_px=_JOINT_CUTOFF_PX)
+    allowed = cost + _FEWER_VIEWS_TOLERANCE * cost / n
     while len(_moved(shifts)) >= 2:
         trials = []
         for dropped in sorted(_moved(shifts)):
@@ -423,12 +425,12 @@ def _fewer_moved(projections: Sequence[Projection], centre_lines: Sequence[Centr
                                               views=kept, reach_px=_FEWER_VIEWS_REACH_PX)
             trials.append((fitted_cost, fitted, t))
         fitted_cost, fitted, t = min(trials, key=lambda trial: trial[0])
-        if fitted_cost > cost + _FEWER_VIEWS_TOLERANCE * cost / n:
+        if fitted_cost > allowed:
             break
         fitted, further = _gauge(fitted, jacobians)
         if len(_moved(fitted)) >= len(_moved(shifts)):
             break
-        shifts, cost, translation = fitted, fitted_cost, translation + t + further
+        shifts, translation = fitted, translation + t + further
     return shifts, translation
 
 
