@@ -100,14 +100,19 @@ def test_polish_needs_three_views():
         polish_shifts(projections, [Centreline(v.mask) for v in case.views[:2]], np.zeros((2, 2)))
 
 
+def _shifted_tube(view2_shift_px):
+    """The views of :func:`_views`, the centrelines of one tube seen in them with view 2's mask
+    content moved by ``view2_shift_px``, and the true shifts."""
+    projections = _views()
+    truth = np.array([[0.0, 0.0], [0.0, 0.0], view2_shift_px])
+    masks = [_tube_mask(p.shifted(*s), _curve(), 1.2) for p, s in zip(projections, truth)]
+    return projections, [Centreline(m) for m in masks], truth
+
+
 def test_joint_fit_lowers_the_summed_cost_without_moving_the_object():
     # Three views of one tube; view 2's mask content moved by (1.6, -2.3) px. The joint fit starts
     # from no correction and walks only across the directions a common 3D translation leaves open.
-    projections = _views()
-    curve = _curve()
-    truth = np.array([[0.0, 0.0], [0.0, 0.0], [1.6, -2.3]])
-    masks = [_tube_mask(p.shifted(*s), curve, 1.2) for p, s in zip(projections, truth)]
-    centre_lines = [Centreline(m) for m in masks]
+    projections, centre_lines, truth = _shifted_tube((1.6, -2.3))
     jacobians = [_jacobian(p) for p in projections]
     gauge = np.vstack(jacobians)
     start = np.zeros((3, 2))
@@ -122,11 +127,7 @@ def test_joint_fit_lowers_the_summed_cost_without_moving_the_object():
 def test_joint_fit_of_some_views_holds_the_others():
     # The tube of the test above, view 2 moved by (3.6, -2.3) px. Only view 2 may move: views 0 and
     # 1 keep their (exact) shifts bit for bit, and view 2 comes back to the truth from 4 px away.
-    projections = _views()
-    curve = _curve()
-    truth = np.array([[0.0, 0.0], [0.0, 0.0], [3.6, -2.3]])
-    masks = [_tube_mask(p.shifted(*s), curve, 1.2) for p, s in zip(projections, truth)]
-    centre_lines = [Centreline(m) for m in masks]
+    projections, centre_lines, truth = _shifted_tube((3.6, -2.3))
     gauge = np.vstack([_jacobian(p) for p in projections])
     shifts, cost = fit_jointly(projections, centre_lines, np.zeros((3, 2)), gauge, views=[2], reach_px=4)
     np.testing.assert_array_equal(shifts[:2], 0.0)

@@ -370,7 +370,7 @@ def fit_jointly(projections: Sequence[Projection], centre_lines: Sequence[Centre
         return _summed_cost(projections, centre_lines, x.reshape(-1, 2), pair_lists, cutoff_px)
 
     offsets = [(du, dv) for du in range(-reach_px, reach_px + 1) for dv in range(-reach_px, reach_px + 1)]
-    for v in free if reach_px > 0 else []:
+    for v in free if reach_px > 0 else ():  # the best integer offset, one view after another
         trials = []
         for offset in offsets:
             trial = shifts.copy()
