@@ -307,6 +307,13 @@ def _greedy(level: "_Level", window: int, shifts: np.ndarray, history: list, nee
         history.append((level.lattice.resolution, v, float(du), float(dv), gain))
 
 
+def _keeping(shifts: np.ndarray, jacobians: Sequence[np.ndarray], views: Sequence[int]) -> np.ndarray:
+    """The 3D translation whose image shifts ``J_v t`` best match ``shifts`` of ``views`` (least
+    squares): taken out, it leaves those views as nearly unmoved as a translation can."""
+    return np.linalg.lstsq(np.vstack([jacobians[v] for v in views]), np.concatenate([shifts[v] for v in views]),
+                           rcond=None)[0]
+
+
 def _gauge_candidates(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> list[tuple[tuple, np.ndarray, np.ndarray]]:
     """The corrections equivalent to ``shifts`` up to a common 3D translation ``t``, as
     ``(key, corrected shifts, t)`` with key = (views moved by _MOVED_PX or more, total shift, |t|).
@@ -319,8 +326,7 @@ def _gauge_candidates(shifts: np.ndarray, jacobians: Sequence[np.ndarray]) -> li
     for v in range(n):
         translations.append(np.linalg.pinv(jacobians[v]) @ shifts[v])
         for w in range(v + 1, n):
-            a = np.vstack([jacobians[v], jacobians[w]])
-            translations.append(np.linalg.lstsq(a, np.concatenate([shifts[v], shifts[w]]), rcond=None)[0])
+            translations.append(_keeping(shifts, jacobians, (v, w)))
     out = []
     for t in translations:
         corrected = shifts - np.stack([j @ t for j in jacobians])
@@ -349,8 +355,7 @@ def _gauge(shifts: np.ndarray, jacobians: Sequence[np.ndarray],
     # leftovers are the views' own disagreement.
     unmoved = sorted(set(range(len(jacobians))) - _moved(corrected))
     if unmoved:
-        fitted = np.linalg.lstsq(np.vstack([jacobians[v] for v in unmoved]),
-                                 np.concatenate([shifts[v] for v in unmoved]), rcond=None)[0]
+        fitted = _keeping(shifts, jacobians, unmoved)
         refitted = shifts - np.stack([j @ fitted for j in jacobians])
         if _moved(refitted) == _moved(corrected):
             return refitted, fitted
@@ -417,8 +422,7 @@ def _fewer_moved(projections: Sequence[Projection], centre_lines: Sequence[Centr
         for dropped in sorted(_moved(shifts)):
             kept = sorted(_moved(shifts) - {dropped})
             held = [v for v in range(n) if v not in kept]
-            t = np.linalg.lstsq(np.vstack([jacobians[v] for v in held]),
-                                np.concatenate([shifts[v] for v in held]), rcond=None)[0]
+            t = _keeping(shifts, jacobians, held)
             start = shifts - np.stack([j @ t for j in jacobians])
             start[held] = 0.0
             fitted, fitted_cost = fit_jointly(projections, centre_lines, start, gauge, cutoff_px=_JOINT_CUTOFF_PX,

@@ -357,10 +357,8 @@ def fit_jointly(projections: Sequence[Projection], centre_lines: Sequence[Centre
     columns = np.array([2 * v + k for v in free for k in (0, 1)], dtype=int)
     gauge = np.asarray(gauge_directions, dtype=float).reshape(2 * n, -1)
     held = np.setdiff1d(np.arange(2 * n), columns)
-    if len(held):  # translations that leave the held views in place
-        _, singular, vt = np.linalg.svd(gauge[held], full_matrices=True)
-        rank = int(np.count_nonzero(singular > 1e-9 * max(1.0, float(singular.max(initial=0.0)))))
-        gauge = gauge @ vt[rank:].T
+    if len(held):  # translations that leave the held views in place: the null space of their rows
+        gauge = gauge @ _off_gauge_basis(gauge[held].T, gauge.shape[1]).T
     local = _off_gauge_basis(gauge[columns], len(columns))
     basis = np.zeros((len(local), 2 * n))
     basis[:, columns] = local

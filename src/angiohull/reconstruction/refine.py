@@ -20,8 +20,8 @@ steps that stay interpretable:
    centrelines. Two views fix a point and a third confirms it; with more views, a vessel is
    overlapped by another or seen end-on in some of them, where its 2D centreline runs elsewhere.
    Each gets a radius: in every view, the half-width of the mask at the 2D centreline pixel
-   nearest to its projection, converted to mm at its depth; the smallest over the views (a vessel overlapping another in one view only looks
-   wider there). A hull point is kept when its distance to the nearest axis point is at most that
+   nearest to its projection, converted to mm at its depth; the smallest over the views (a vessel
+   overlapping another in one view only looks wider there). A hull point is kept when its distance to the nearest axis point is at most that
    point's radius plus ``slack_cells`` lattice spacings. This trims the polygonal excess of the hull
    and the threshold's widening back to a tube. (A 3D skeleton of the hull would be the obvious
    axis, but scikit-image's 3D thinning can delete structures of even thickness entirely,
