@@ -21,11 +21,11 @@ steps that stay interpretable:
    overlapped by another or seen end-on in some of them, where its 2D centreline runs elsewhere.
    Each gets a radius: in every view, the half-width of the mask at the 2D centreline pixel
    nearest to its projection, converted to mm at its depth; the smallest over the views (a vessel
-   overlapping another in one view only looks wider there). A hull point is kept when its distance to the nearest axis point is at most that
-   point's radius plus ``slack_cells`` lattice spacings. This trims the polygonal excess of the hull
-   and the threshold's widening back to a tube. (A 3D skeleton of the hull would be the obvious
-   axis, but scikit-image's 3D thinning can delete structures of even thickness entirely,
-   scikit-image issue #3757.)
+   overlapping another in one view only looks wider there). A hull point is kept when its
+   distance to the nearest axis point is at most that point's radius plus ``slack_cells`` lattice
+   spacings. This trims the polygonal excess of the hull and the threshold's widening back to a
+   tube. (A 3D skeleton of the hull would be the obvious axis, but scikit-image's 3D thinning can
+   delete structures of even thickness entirely, scikit-image issue #3757.)
 4. **Explanation** (before the radius check; :func:`drop_explained_pieces`): where the cones of
    branches that cross in projection meet, the hull keeps *phantom* pieces that project onto vessel
    pixels, even onto the 2D centreline, in every view, so they carry axis points of their own. What
