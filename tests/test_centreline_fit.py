@@ -5,8 +5,8 @@ import pytest
 
 from angiohull.geometry import CArmGeometry
 from angiohull.reconstruction.calibration import _jacobian
-from angiohull.reconstruction.centreline_fit import (Centreline, consistency_cost, fit_jointly, fit_scales_jointly,
-                                                       fit_view_shift, match_pair, polish_shifts)
+from angiohull.reconstruction.centreline_fit import (Centreline, centreline_rays, consistency_cost, fit_jointly,
+                                                       fit_scales_jointly, fit_view_shift, match_pair, polish_shifts)
 from angiohull.synthetic import SynthOptions, make_case
 
 from _cases import geometry_error_px
@@ -66,6 +66,34 @@ def test_matches_of_a_curve_contain_the_curve():
     distance, _ = cKDTree(points).query(curve[20:-20])  # the ends are capped by the balls
     mm_per_px = 800.0 / max(p_i.focal_lengths_px)
     assert np.percentile(distance, 95) < 2.0 * mm_per_px
+
+
+def test_distances_to_the_centreline_equal_brute_force():
+    # Oracle: the distance to every centreline point, the smallest taken, cut off. Points near and
+    # on the centreline (where the per-pixel candidates answer), far from it (the floor), off the
+    # image and not finite (the k-d tree), and a cutoff beyond the floor's reach.
+    centre_line = Centreline(_tube_mask(_views()[0], _curve(), 1.2))
+    rng = np.random.default_rng(3)
+    base = centre_line.uv_px[rng.integers(0, len(centre_line.uv_px), 4000)]
+    points = np.vstack([base + rng.normal(scale=s, size=base.shape) for s in (0.3, 1.5, 4.0)]
+                       + [rng.uniform(-40.0, 552.0, size=(3000, 2)), [[np.nan, 3.0], [-0.6, 511.6], [511.4, 0.0]]])
+    for cutoff in (0.5, 1.0, 2.0, 3.0, 5.0):
+        brute = np.full(len(points), cutoff)
+        finite = np.all(np.isfinite(points), axis=1)
+        d = np.sqrt(((points[finite, None, :] - centre_line.uv_px[None, :, :]) ** 2).sum(axis=2)).min(axis=1)
+        brute[finite] = np.minimum(d, cutoff)
+        np.testing.assert_allclose(centre_line.distances(points, cutoff), brute, rtol=0, atol=1e-12)
+        assert (brute < cutoff).sum() > 1000 and (brute == cutoff).sum() > 1000
+
+
+def test_match_pair_with_rays_at_hand_is_the_same():
+    p_i, p_j, _ = _views()
+    lines = [Centreline(_tube_mask(p, _curve(), 1.2)) for p in (p_i, p_j)]
+    plain = match_pair(p_i, p_j, *lines)
+    given = match_pair(p_i, p_j, *lines, rays_i=centreline_rays(p_i, lines[0]), rays_j=centreline_rays(p_j, lines[1]))
+    assert len(plain[0]) > 100
+    for a, b in zip(plain, given):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_fit_recovers_a_known_sub_pixel_shift():

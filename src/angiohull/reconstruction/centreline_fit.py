@@ -24,7 +24,10 @@ uses that:
    ``s`` is the weighted mean of ``min(d, cutoff_px)**2`` with ``d`` the distance from a shifted
    projection to the nearest centreline pixel of ``v``: a truncated quadratic, so wrong matches
    add a constant. It is minimised over integer shifts within ``reach`` of the start, then on
-   halving grids down to 0.05 px.
+   halving grids down to 0.05 px. The distances are exact but mostly not asked of a k-d tree
+   (:meth:`Centreline.distances`): about two thirds of the candidate matches land farther than
+   the cutoff from any centreline, which a per-pixel lower bound shows at once, and for the rest
+   each pixel lists the few centreline points that can be nearest.
 4. **Sweeps.** Each view in turn is fitted to the points triangulated from the others (the
    others with their current shifts), until no view moves by more than 0.05 px.
 
@@ -46,8 +49,8 @@ from skimage.morphology import thin
 from ..geometry import Projection
 from .epipolar import EpipolarPencil, ray_directions
 
-__all__ = ["Centreline", "match_pair", "fit_view_shift", "fit_view_scale", "polish_shifts", "consistency_cost",
-           "fit_jointly", "fit_scales_jointly", "PAIRS_PER_VIEW"]
+__all__ = ["Centreline", "centreline_rays", "match_pair", "fit_view_shift", "fit_view_scale", "polish_shifts",
+           "consistency_cost", "fit_jointly", "fit_scales_jointly", "PAIRS_PER_VIEW"]
 
 RADIUS_TOLERANCE = 0.3
 """Two matched centreline pixels must show the same vessel radius (mm, at the triangulated point)
@@ -78,6 +81,77 @@ class Centreline:
         self.half_width_px = ndi.distance_transform_edt(mask)[rows, cols] - 0.5
         self.uv_px = pixels + _centring_offsets(mask, skeleton, pixels, self.half_width_px)
         self.tree = cKDTree(self.uv_px) if len(self.uv_px) else None
+        self.distance_floor_px, self._candidate_row, self._candidates = _distance_floor(self.tree, mask.shape)
+        self._candidate_uv = (np.append(self.uv_px[:, 0], np.inf), np.append(self.uv_px[:, 1], np.inf))  # + padding
+
+    def distances(self, uv_px: np.ndarray, cutoff_px: float) -> np.ndarray:
+        """Distance from each point to the nearest centreline point, ``cutoff_px`` where it is
+        farther. Exact, and quicker than asking the k-d tree: a point whose nearest pixel's distance
+        floor exceeds the cutoff is farther (most candidate matches of :func:`match_pair` land far
+        from any centreline); for the others only that pixel's candidates are measured. Points off
+        the image go to the k-d tree; points that are not finite (no projection) count as farther."""
+        distance = np.full(len(uv_px), float(cutoff_px))
+        if self.tree is None or len(uv_px) == 0:
+            return distance
+        finite = np.all(np.isfinite(uv_px), axis=1)
+        rows, cols = self.distance_floor_px.shape
+        iu = np.floor(uv_px[:, 0] + 0.5)
+        iv = np.floor(uv_px[:, 1] + 0.5)
+        on_image = (iu >= 0) & (iu < cols) & (iv >= 0) & (iv < rows)
+        ask = finite & ~on_image
+        if cutoff_px >= _FLOOR_REACH_PX - np.sqrt(0.5):  # the floor does not tell: ask about every point
+            ask, on_image = finite, np.zeros(len(uv_px), dtype=bool)
+        on = np.flatnonzero(on_image)
+        on_rows, on_cols = iv[on].astype(np.int64), iu[on].astype(np.int64)
+        near = self.distance_floor_px[on_rows, on_cols] <= cutoff_px
+        if near.any():
+            index = on[near]
+            candidates = self._candidates[self._candidate_row[on_rows[near], on_cols[near]]]  # (M, C)
+            du = uv_px[index, 0][:, None] - self._candidate_uv[0][candidates]
+            dv = uv_px[index, 1][:, None] - self._candidate_uv[1][candidates]
+            distance[index] = np.minimum(np.sqrt(du * du + dv * dv).min(axis=1), cutoff_px)
+        if ask.any():
+            found, _ = self.tree.query(uv_px[ask], distance_upper_bound=cutoff_px)
+            distance[ask] = np.minimum(found, cutoff_px)  # misses come back as inf
+        return distance
+
+
+_FLOOR_REACH_PX = 4.0  # Centreline.distance_floor_px is measured out to this distance from the centreline
+_ROUNDING_PX = 1e-9  # the floor is lowered and the candidates' radius raised by this: exact despite rounding
+
+
+def _distance_floor(tree: cKDTree | None, shape: tuple[int, int]):
+    """Per pixel, for the points whose nearest pixel it is (within half a pixel diagonal of its
+    centre): a lower bound of their distance to the nearest point of ``tree`` (the pixel centre's,
+    less half a diagonal; inf beyond _FLOOR_REACH_PX), and the points of ``tree`` that can be the
+    nearest (those within the pixel centre's distance plus a whole diagonal).
+
+    Returns ``(floor (rows, cols), candidate row (rows, cols), candidates (n, C))``: the
+    candidates of a pixel are row ``candidate row[pixel]`` of ``candidates``, indices into the
+    tree's points padded with ``len(points)``; None where ``tree`` is None."""
+    if tree is None:
+        return None, None, None
+    floor = np.full(shape, np.inf)
+    low = np.maximum(np.floor(tree.mins - _FLOOR_REACH_PX).astype(np.int64), 0)  # (u, v)
+    high = np.minimum(np.ceil(tree.maxes + _FLOOR_REACH_PX).astype(np.int64) + 1, (shape[1], shape[0]))
+    v, u = np.mgrid[low[1]:high[1], low[0]:high[0]]
+    centres = np.column_stack([u.ravel(), v.ravel()]).astype(float)
+    found, _ = tree.query(centres, distance_upper_bound=_FLOOR_REACH_PX)
+    band = np.isfinite(found)
+    floor[v.ravel()[band], u.ravel()[band]] = found[band] - np.sqrt(0.5) - _ROUNDING_PX
+    lists = tree.query_ball_point(centres[band], found[band] + np.sqrt(2.0) + _ROUNDING_PX)
+    counts = np.fromiter((len(c) for c in lists), dtype=np.int64, count=len(lists))
+    candidates = np.full((len(lists), int(counts.max(initial=1))), tree.n, dtype=np.int64)
+    candidates[np.arange(len(lists)).repeat(counts), _ranks(counts)] = np.concatenate(
+        [np.asarray(c, dtype=np.int64) for c in lists]) if len(lists) else np.zeros(0, np.int64)
+    candidate_row = np.zeros(shape, dtype=np.int64)
+    candidate_row[v.ravel()[band], u.ravel()[band]] = np.arange(len(lists))
+    return floor, candidate_row, candidates
+
+
+def _ranks(counts: np.ndarray) -> np.ndarray:
+    """0, 1, ..., counts[0]-1, 0, 1, ..., counts[1]-1, ..."""
+    return np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
 
 
 def _skeleton_normals(skeleton: np.ndarray, pixels: np.ndarray) -> np.ndarray:
@@ -134,27 +208,37 @@ def _centring_offsets(mask: np.ndarray, skeleton: np.ndarray, pixels: np.ndarray
     return move[:, None] * normals
 
 
+def centreline_rays(projection: Projection, centre_line: Centreline) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit ray directions through a view's centreline points, and through the same points moved
+    by one pixel in u and in v: what :func:`match_pair` needs of one view (any pair it is in)."""
+    uv = centre_line.uv_px
+    return tuple(ray_directions(projection, uv + step) for step in ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0)))
+
+
 def match_pair(projection_i: Projection, projection_j: Projection, centre_line_i: Centreline,
-               centre_line_j: Centreline, match_tolerance_px: float = 0.75) -> tuple[np.ndarray, np.ndarray]:
+               centre_line_j: Centreline, match_tolerance_px: float = 0.75, *,
+               rays_i: tuple | None = None, rays_j: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Triangulated candidate matches of two views' centreline pixels, and their weights.
 
+    ``rays_i``, ``rays_j``: :func:`centreline_rays` of the two views, when already at hand.
     Returns ``(points_mm (M, 3), weights (M,))``; see the module notes.
     """
     if len(centre_line_i.uv_px) == 0 or len(centre_line_j.uv_px) == 0:
         return np.zeros((0, 3)), np.zeros(0)
     c_i, c_j = projection_i.camera_centre_mm, projection_j.camera_centre_mm
-    d_i = ray_directions(projection_i, centre_line_i.uv_px)
-    d_j = ray_directions(projection_j, centre_line_j.uv_px)
+    rays_i = centreline_rays(projection_i, centre_line_i) if rays_i is None else rays_i
+    rays_j = centreline_rays(projection_j, centre_line_j) if rays_j is None else rays_j
+    d_i, d_j = rays_i[0], rays_j[0]
     pencil = EpipolarPencil(c_i, c_j)
-    phi_i = pencil.angle(d_i)
+    unwrapped_i = pencil.unwrapped_angle(d_i)
+    phi_i = pencil.wrapped(unwrapped_i)
     pencil.offset = float(np.angle(np.mean(np.exp(1j * phi_i))))  # keep the angles away from +-pi
-    phi_i = pencil.angle(d_i)
+    phi_i = pencil.wrapped(unwrapped_i)
     phi_j = pencil.angle(d_j)
     # angular size of one pixel, from unit steps in u and v
     pixel_angle = []
-    for projection, uv, phi in ((projection_i, centre_line_i.uv_px, phi_i), (projection_j, centre_line_j.uv_px, phi_j)):
-        steps = [np.angle(np.exp(1j * (pencil.angle(ray_directions(projection, uv + step)) - phi)))
-                 for step in ((1.0, 0.0), (0.0, 1.0))]
+    for rays, phi in ((rays_i, phi_i), (rays_j, phi_j)):
+        steps = [np.angle(np.exp(1j * (pencil.angle(stepped) - phi))) for stepped in rays[1:]]
         pixel_angle.append(float(np.median(np.hypot(*steps))))
     tolerance = match_tolerance_px * max(pixel_angle)
     order = np.argsort(phi_j)
@@ -178,9 +262,10 @@ def match_pair(projection_i: Projection, projection_j: Projection, centre_line_i
     t = (bw - ab * aw) / denominator
     points = 0.5 * ((c_i + s[:, None] * a) + (c_j + t[:, None] * b))
     # a true match joins two silhouettes of the same vessel: the same radius in mm at the point
-    radius_i = centre_line_i.half_width_px[ii] * s / max(projection_i.focal_lengths_px)
-    radius_j = centre_line_j.half_width_px[jj] * t / max(projection_j.focal_lengths_px)
-    pixel_mm = np.maximum(s / max(projection_i.focal_lengths_px), t / max(projection_j.focal_lengths_px))
+    focal_i, focal_j = max(projection_i.focal_lengths_px), max(projection_j.focal_lengths_px)
+    radius_i = centre_line_i.half_width_px[ii] * s / focal_i
+    radius_j = centre_line_j.half_width_px[jj] * t / focal_j
+    pixel_mm = np.maximum(s / focal_i, t / focal_j)
     same = np.abs(radius_i - radius_j) <= RADIUS_TOLERANCE * np.maximum(radius_i, radius_j) + pixel_mm
     keep = same & (s > 0) & (t > 0)
     ii, jj, points = ii[keep], jj[keep], points[keep]
@@ -191,8 +276,7 @@ def match_pair(projection_i: Projection, projection_j: Projection, centre_line_i
 
 
 def _cost(centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarray, shift_px, cutoff_px: float) -> float:
-    distance, _ = centre_line.tree.query(uv_px + np.asarray(shift_px), distance_upper_bound=cutoff_px)
-    distance = np.minimum(distance, cutoff_px)  # misses come back as inf
+    distance = centre_line.distances(uv_px + np.asarray(shift_px), cutoff_px)
     return float(np.sum(weights * distance ** 2) / np.sum(weights))
 
 
@@ -248,8 +332,14 @@ def _triangulated_for(pairs: Sequence[tuple[int, int]], projections: Sequence[Pr
     parts = []
     for i, j in pairs:
         if (i, j) not in matched:
-            matched[i, j] = match_pair(projections[i].shifted(*shifts_px[i]), projections[j].shifted(*shifts_px[j]),
-                                       centre_lines[i], centre_lines[j])
+            views = {}
+            for k in (i, j):  # a view's rays serve every pair it is in
+                if ("view", k) not in matched:
+                    shifted = projections[k].shifted(*shifts_px[k])
+                    matched["view", k] = (shifted, centreline_rays(shifted, centre_lines[k]))
+                views[k] = matched["view", k]
+            matched[i, j] = match_pair(views[i][0], views[j][0], centre_lines[i], centre_lines[j],
+                                       rays_i=views[i][1], rays_j=views[j][1])
         parts.append(matched[i, j])
     parts = [(x, w / w.sum()) for x, w in parts if len(x)]
     if not parts:

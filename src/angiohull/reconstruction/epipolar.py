@@ -55,11 +55,22 @@ class EpipolarPencil:
         self.offset = 0.0
 
     def angle(self, directions: np.ndarray) -> np.ndarray:
+        """The angle of the plane through the baseline and each ray (unit directions (N, 3)),
+        less :attr:`offset`, in (-pi, pi]."""
+        return self.wrapped(self.unwrapped_angle(directions))
+
+    def unwrapped_angle(self, directions: np.ndarray) -> np.ndarray:
+        """:meth:`angle` before :attr:`offset` is taken off (measured from ``e1``)."""
         # the plane through the baseline and a ray from either centre has normal axis x direction
         # (for a ray from C_j, axis x (C_j - C_i + l d) = l axis x d): one formula for both views
-        normals = np.cross(self.axis, directions)
-        raw = np.arctan2(normals @ self.e2, normals @ self.e1)
-        return np.angle(np.exp(1j * (raw - self.offset)))
+        a = self.axis
+        x, y, z = directions[:, 0], directions[:, 1], directions[:, 2]
+        normals = np.column_stack([a[1] * z - a[2] * y, a[2] * x - a[0] * z, a[0] * y - a[1] * x])
+        return np.arctan2(normals @ self.e2, normals @ self.e1)
+
+    def wrapped(self, unwrapped: np.ndarray) -> np.ndarray:
+        """Angles from :meth:`unwrapped_angle` with :attr:`offset` taken off, wrapped to (-pi, pi]."""
+        return np.angle(np.exp(1j * (unwrapped - self.offset)))
 
     def pixel_angles(self, projection: Projection, uv_px: np.ndarray) -> np.ndarray:
         """The angles of the planes through the rays of pixels ``uv_px``."""
