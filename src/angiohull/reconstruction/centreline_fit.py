@@ -131,20 +131,21 @@ def _distance_floor(tree: cKDTree | None, shape: tuple[int, int]):
     tree's points padded with ``len(points)``; None where ``tree`` is None."""
     if tree is None:
         return None, None, None
-    floor = np.full(shape, np.inf)
+    floor = np.full(shape, np.inf, dtype=np.float32)  # single precision, rounded down below: still a floor
     low = np.maximum(np.floor(tree.mins - _FLOOR_REACH_PX).astype(np.int64), 0)  # (u, v)
     high = np.minimum(np.ceil(tree.maxes + _FLOOR_REACH_PX).astype(np.int64) + 1, (shape[1], shape[0]))
     v, u = np.mgrid[low[1]:high[1], low[0]:high[0]]
     centres = np.column_stack([u.ravel(), v.ravel()]).astype(float)
     found, _ = tree.query(centres, distance_upper_bound=_FLOOR_REACH_PX)
     band = np.isfinite(found)
-    floor[v.ravel()[band], u.ravel()[band]] = found[band] - np.sqrt(0.5) - _ROUNDING_PX
+    below = (found[band] - np.sqrt(0.5) - _ROUNDING_PX).astype(np.float32)
+    floor[v.ravel()[band], u.ravel()[band]] = np.nextafter(below, np.float32(-np.inf))
     lists = tree.query_ball_point(centres[band], found[band] + np.sqrt(2.0) + _ROUNDING_PX)
     counts = np.fromiter((len(c) for c in lists), dtype=np.int64, count=len(lists))
-    candidates = np.full((len(lists), int(counts.max(initial=1))), tree.n, dtype=np.int64)
+    candidates = np.full((len(lists), int(counts.max(initial=1))), tree.n, dtype=np.int32)
     candidates[np.arange(len(lists)).repeat(counts), _ranks(counts)] = np.concatenate(
-        [np.asarray(c, dtype=np.int64) for c in lists]) if len(lists) else np.zeros(0, np.int64)
-    candidate_row = np.zeros(shape, dtype=np.int64)
+        [np.asarray(c, dtype=np.int32) for c in lists]) if len(lists) else np.zeros(0, np.int32)
+    candidate_row = np.zeros(shape, dtype=np.int32)
     candidate_row[v.ravel()[band], u.ravel()[band]] = np.arange(len(lists))
     return floor, candidate_row, candidates
 
