@@ -213,3 +213,13 @@ def test_magnified_view_is_the_same_pose_with_a_longer_source_to_image_distance(
     centre = np.array(p.principal_point_px)
     ray_point = p.camera_centre_mm + 500.0 * np.linalg.solve(p.matrix[:, :3], np.append(centre, 1.0))
     np.testing.assert_allclose(p.magnified(0.8).project(ray_point[None])[0], centre, atol=1e-9)
+
+
+def test_jacobian_matches_central_differences():
+    projection = carm(25.0, -15.0, offset=(3.0, -2.0)).projection()
+    points = np.random.default_rng(4).uniform(-60.0, 60.0, size=(20, 3))
+    step = 1e-4
+    expected = np.stack([(projection.project(points + step * e) - projection.project(points - step * e)) / (2 * step)
+                         for e in np.eye(3)], axis=2)
+    assert projection.jacobian(points).shape == (20, 2, 3)
+    np.testing.assert_allclose(projection.jacobian(points), expected, rtol=1e-7, atol=1e-9)

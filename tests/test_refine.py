@@ -157,3 +157,32 @@ def test_a_vessel_sampled_with_gaps_is_one_part():
     assert info["components_removed"] == 0
     inner = np.abs(bridged[:, 0]) < 25
     assert np.ptp(bridged[inner, 0]) > 45  # the whole tube, not a piece of it
+
+
+def test_tube_axis_of_a_straight_tube_lies_on_its_axis_with_its_radius():
+    # The rod of the test above: the axis points are hull points on the 2D centreline in both views,
+    # so within a lattice cell of the line, and their radius is the masks' half-width (-0.5 px
+    # for the edge half-way between pixel centres) over the magnification.
+    from angiohull.reconstruction import Lattice
+    from angiohull.reconstruction.refine import refine_hull, tube_axis
+
+    start, end, radius = np.array([-30.0, 0.0, 0.0]), np.array([30.0, 0.0, 0.0]), 2.5
+    phantom = TubePhantom((Tube(np.stack([start, end]), radius),), "rod")
+    carms = [CArmGeometry(a, b, 1200.0, 800.0, (0.35, 0.35), (512, 512)) for a, b in ((0, 0), (0, 90))]
+    projections = [c.projection() for c in carms]
+    masks = [phantom.silhouette(p) for p in projections]
+    carved = reconstruct(projections, masks, resolution=REFINED.resolution, centerlines=False)
+    lattice: Lattice = carved.lattice
+    axis, radii = tube_axis(carved.vessel_points_mm, lattice, projections, masks)
+    inner = np.abs(axis[:, 0]) < 25
+    assert inner.sum() > 100
+    assert _axis_distance(axis[inner], start, end).max() <= np.sqrt(2) * lattice.spacing_mm
+    # one pixel at the isocentre is 0.35 / 1.5 mm: the radius is read to about a pixel
+    assert np.all(np.abs(radii[inner] - radius) <= 0.35 / 1.5 * 1.5)
+    # refine_hull keeps exactly the hull points within a radius (+ slack) of these axis points
+    refined, _ = refine_hull(carved.vessel_points_mm, lattice, projections, masks)
+    points = carved.vessel_points_mm
+    distance = np.linalg.norm(points[:, None, :] - axis[None, :, :], axis=2)
+    nearest = np.argmin(distance, axis=1)
+    within = distance[np.arange(len(points)), nearest] <= radii[nearest] + REFINED.slack_cells * lattice.spacing_mm
+    np.testing.assert_array_equal(refined, points[within])

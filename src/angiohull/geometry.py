@@ -94,6 +94,13 @@ class Projection:
         with np.errstate(divide="ignore", invalid="ignore"):
             return h[:, :2] / h[:, 2:3]
 
+    def jacobian(self, points_mm: np.ndarray) -> np.ndarray:
+        """``d(u, v)/dX`` at each point, shape (N, 2, 3), pixels per mm."""
+        h = self.homogeneous(points_mm)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = h[:, :2] / h[:, 2:3]
+            return (self.matrix[None, :2, :3] - uv[:, :, None] * self.matrix[None, 2:3, :3]) / h[:, 2, None, None]
+
     def shifted(self, du_px: float, dv_px: float) -> "Projection":
         """The projection whose image is moved by ``(du, dv)`` pixels: ``T(du, dv) P``."""
         shift = np.array([[1.0, 0.0, du_px], [0.0, 1.0, dv_px], [0.0, 0.0, 1.0]])

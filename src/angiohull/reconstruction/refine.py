@@ -68,7 +68,8 @@ from skimage.morphology import thin
 from ..geometry import Projection
 from .cube import Lattice
 
-__all__ = ["RefineSettings", "REFINED", "clean_mask", "refine_hull", "centreline_branches", "drop_explained_pieces"]
+__all__ = ["RefineSettings", "REFINED", "clean_mask", "refine_hull", "tube_axis", "centreline_branches",
+           "drop_explained_pieces"]
 
 
 @dataclass(frozen=True)
@@ -270,6 +271,53 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
     info = {"components_removed": 0, "pieces_removed": 0, "radius_removed": 0}
     if len(points_mm) == 0:
         return points_mm, info
+    big, radius, axis = _axis_points(points_mm, lattice, projections, masks, settings, info)
+    candidates = points_mm[big]
+    if axis is None:
+        return candidates, info
+    if len(axis) == 0:
+        info["radius_removed"] = len(candidates)
+        return candidates[:0], info
+    # radius consistency: keep hull points within the radius of their nearest (kept) axis point
+    _, in_tube = _radius_tube(candidates, radius, axis, settings.slack_cells * lattice.spacing_mm)
+    keep = np.zeros(len(points_mm), dtype=bool)
+    keep[np.flatnonzero(big)[in_tube]] = True
+    info["radius_removed"] = int((~in_tube).sum())
+    return points_mm[keep], info
+
+
+def tube_axis(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Projection],
+              masks: Sequence[np.ndarray], settings: RefineSettings = REFINED) -> tuple[np.ndarray, np.ndarray]:
+    """The axis points the radius check of :func:`refine_hull` keeps (after connectivity and
+    explanation) and their radii: a model of the vessels as a union of balls.
+
+    Returns
+    -------
+    axis_points : (A, 3) array, mm
+    radius : (A,) array, mm (the smallest half-width the views show at the point)
+    """
+    if len(points_mm) == 0:
+        return np.zeros((0, 3)), np.zeros(0)
+    big, radius, axis = _axis_points(points_mm, lattice, projections, masks, settings, {})
+    if axis is None:
+        return np.zeros((0, 3)), np.zeros(0)
+    return points_mm[big][axis], radius[axis]
+
+
+def _radius_tube(candidates: np.ndarray, radius: np.ndarray, axis: np.ndarray,
+                 slack_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """(nearest axis point, within its radius + slack) of every candidate."""
+    distance, owner = cKDTree(candidates[axis]).query(candidates)
+    return owner, distance <= radius[axis][owner] + slack_mm
+
+
+def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Projection],
+                 masks: Sequence[np.ndarray], settings: RefineSettings,
+                 info: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Steps 2-4 of the module notes: ``(big, radius, axis)``. ``big`` marks the points in large
+    enough parts (the candidates), ``radius`` is each candidate's radius (mm) and ``axis`` the
+    indices of the kept axis points among the candidates (None when no candidate is an axis
+    point). Fills the counts of ``info``."""
     h = lattice.spacing_mm
     ijk = np.round((points_mm + lattice.half_edge_mm) / h).astype(np.int64)
     low = ijk.min(axis=0) - 2
@@ -316,17 +364,11 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
         views.append((uv, reach_px, centreline, centre_rows, centre_cols))
     near_axis = on_axis_views >= min(settings.axis_views, len(projections))
     if not near_axis.any():
-        return candidates, info
-
-    def radius_tube(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(nearest axis point, within its radius + slack) of every candidate."""
-        distance, owner = cKDTree(candidates[axis]).query(candidates)
-        return owner, distance <= radius[axis][owner] + settings.slack_cells * h
-
+        return big, radius, None
     axis = np.flatnonzero(near_axis)
-    owner, in_tube = radius_tube(axis)
     # 4. explanation: drop axis pieces whose pixels other pieces explain in every view
     if settings.unique_fraction > 0:
+        owner, in_tube = _radius_tube(candidates, radius, axis, settings.slack_cells * h)
         piece = _axis_pieces(local[big][axis], volume.shape,
                              [centreline_branches(c)[r[axis], k[axis]] for _, _, c, r, k in views])
         tube = np.flatnonzero(in_tube)
@@ -337,14 +379,5 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
                           hull, to_local) for uv, reach, *_ in views]
         kept = drop_explained_pieces(piece, rivals, settings.unique_fraction)
         info["pieces_removed"] = int((~kept).sum())
-        if not kept.all():
-            axis = axis[kept[piece]]
-            if len(axis) == 0:
-                info["radius_removed"] = len(candidates)
-                return candidates[:0], info
-            _, in_tube = radius_tube(axis)
-    # radius consistency: keep hull points within the radius of their nearest (kept) axis point
-    keep = np.zeros(len(points_mm), dtype=bool)
-    keep[np.flatnonzero(big)[in_tube]] = True
-    info["radius_removed"] = int((~in_tube).sum())
-    return points_mm[keep], info
+        axis = axis[kept[piece]]
+    return big, radius, axis
