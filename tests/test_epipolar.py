@@ -65,3 +65,4 @@ def test_calibration_with_two_views_moves_one_view_by_the_determined_shift():
     assert np.count_nonzero(np.linalg.norm(shifts, axis=1) >= 1.0) == 1  # one view moved
     assert _geometry_error(projections, shifts, [(0.0, 10.0), (0.0, 0.0)]) < 0.3
     assert min(calibration.coverage_after) >= min(calibration.coverage_before)
+    assert calibration.silhouette_fit == "not run: two views"  # step 8 needs three views

@@ -75,6 +75,16 @@ that maximises that agreement (three views or more; two views: see the end):
    (:func:`_scale_views`), both after the shift search and at the header's shifts followed by
    steps 1-6, and the route whose views agree best is kept under the same evidence rule.
 
+8. **Silhouette fit** (three views or more; :mod:`.silhouette_fit`). Where the tree overlaps
+   itself, a mask's centreline runs through the merged silhouette and the centreline cost is
+   biased; the outline of the merged silhouette is not. The axis points of the refined hull at the
+   current shifts, with their radii (:func:`.refine.tube_axis`), are fitted as a union of balls to
+   the masks' outlines together with every view's shift (:func:`.silhouette_fit.fit_silhouettes`),
+   and the gauge is applied with the same views moved. A correction the fit would change by more
+   than ``_SILHOUETTE_REACH_PX`` (common translation taken out) is left as it was: the step
+   polishes. On the authors' 48 studies with view 0 moved by 20 px it brought view 0 from up to
+   1.48 px to within 0.26 px of the truth.
+
 **Two views** determine one number only (four shift components, three of them a common 3D
 translation): view 1's shift across its epipolar lines. The hull of one view is a whole cone, so
 the support score above has no meaning there; :func:`.epipolar.two_view_shift` instead makes the
@@ -99,6 +109,8 @@ from ..geometry import Projection, cube_half_edge_mm
 from .cube import Lattice
 from .centreline_fit import (Centreline, consistency_cost, fit_jointly, fit_scales_jointly, fit_view_scale,
                              polish_shifts)
+from .refine import REFINED, clean_mask, tube_axis
+from .silhouette_fit import fit_silhouettes, mask_edge_points
 from .epipolar import two_view_shift
 from .engines import ENGINES
 
@@ -129,6 +141,8 @@ _JOINT_CUTOFF_PX = 1.0  # after the sweeps the views agree within about a pixel:
 _MIN_COVERAGE_GAIN = 0.001  # a move must raise the mean mask coverage by more than this
 _FEWER_VIEWS_TOLERANCE = 0.045  # of the mean cost per view: what moving one view fewer may cost (step 6b)
 _FEWER_VIEWS_REACH_PX = 4  # integer search around a refitted view's start (step 6b)
+_SILHOUETTE_REACH_PX = 2.0  # step 8 polishes: a correction it would change by more than this is left as it was
+_SILHOUETTE_MIN_BALLS = 10  # step 8 needs a tube model of at least this many axis points
 _SCALE_STEP = 0.02  # coarse step of the scale search
 _MIN_SCALE_GAIN = 0.02  # a scale change must lower the view's own and the summed centreline cost by this fraction
 _MIN_SCALE_EVIDENCE = 0.05  # the scaled outcome must lower the summed cost by this fraction against shifts alone
@@ -151,6 +165,8 @@ class Calibration:
     coverage_before: tuple[float, ...]  # per view: fraction of its mask the hull of all views covers, uncorrected
     coverage_after: tuple[float, ...]  # the same, corrected (K = COVERAGE_RESOLUTION, reconstruction threshold)
     rounds: int  # greedy rounds that changed a view, over all levels
+    # step 8: "applied (RMS ... px)", or why it was not run or not kept
+    silhouette_fit: str = "not run"
     history: list[tuple[int, int, float, float, float]] = field(default_factory=list, repr=False)
     # (level K, view, du, dv, gain) of every applied update
 
@@ -165,7 +181,8 @@ class Calibration:
                        "triangulated centrelines, view by view and then all views at once; gauge: fewest views "
                        "moved, then least total shift; of corrections that explain the views almost as well, the "
                        "one moving fewer views; near-ties: the alternative whose centrelines agree best; "
-                       "two views: agreement of the masks' epipolar planes; scales (when estimated): each view's "
+                       "then (three views or more) the shifts polished against a tube model fitted to the masks' "
+                       "outlines (silhouette fit); two views: agreement of the masks' epipolar planes; scales (when estimated): each view's "
                        "image scale fitted to the centrelines, kept when it lowers their summed cost by "
                        f"{_MIN_SCALE_EVIDENCE:.0%} against shifts alone"),
             "shifts_px": {n: {"du": s[0], "dv": s[1]} for n, s in zip(names, self.shifts_px)},
@@ -174,6 +191,7 @@ class Calibration:
             "coverage_before": dict(zip(names, self.coverage_before)),
             "coverage_after": dict(zip(names, self.coverage_after)),
             "rounds": self.rounds,
+            "silhouette_fit": self.silhouette_fit,
         }
 
 
@@ -185,10 +203,7 @@ def _px_per_mm(projection: Projection) -> float:
 
 def _jacobian(projection: Projection) -> np.ndarray:
     """d(u, v)/dX at the isocentre, (2, 3)."""
-    m = projection.matrix
-    w = m[2, 3]
-    u, v = m[0, 3] / w, m[1, 3] / w
-    return np.stack([(m[0, :3] - u * m[2, :3]) / w, (m[1, :3] - v * m[2, :3]) / w])
+    return projection.jacobian(np.zeros((1, 3)))[0]
 
 
 def _hull(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice, threshold_px: float) -> np.ndarray:
@@ -494,6 +509,7 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
         moved = _moved_view(2, 1, two_view_shift(*projections, *masks, max_shift_px=max_shift_px))
         history: list[tuple[int, int, float, float, float]] = []
         final, translation = _gauge(moved, jacobians)
+        silhouette = "not run: two views"
     else:
         centre_lines = [Centreline(m) for m in masks]
         final, translation, history = _support_then_centrelines(
@@ -502,6 +518,9 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
             scales, final, translation, history = _with_scales(
                 projections, masks, centre_lines, (final, translation, history), half_edge, threshold_px, max_shift_px,
                 min_gain, rounds)
+        final, further, silhouette = _silhouette_step([p.magnified(f) for p, f in zip(projections, scales)], masks,
+                                                      final, half_edge, threshold_px)
+        translation = translation + further
     level = _Level(projections, masks, half_edge, COVERAGE_RESOLUTION, threshold_px)
     before = level.coverage_per_view(np.zeros((n, 2)))
     if np.any(scales != 1.0):
@@ -514,8 +533,35 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
         coverage_before=tuple(before),
         coverage_after=tuple(level.coverage_per_view(final)),
         rounds=len(history),
+        silhouette_fit=silhouette,
         history=history,
     )
+
+
+def _silhouette_step(projections: Sequence[Projection], masks: Sequence[np.ndarray], shifts: np.ndarray,
+                     half_edge: float, threshold_px: float) -> tuple[np.ndarray, np.ndarray, str]:
+    """Step 8 of the module notes: ``(shifts, further 3D translation of the object, outcome)``."""
+    unchanged = np.asarray(shifts, dtype=float), np.zeros(3)
+    cleaned = [clean_mask(m, REFINED.min_neighbours, REFINED.fill_neighbours) for m in masks]
+    if not all(m.any() for m in cleaned):
+        return *unchanged, "not run: a mask is empty after speck removal"
+    current = [shift_projection(p, *s) for p, s in zip(projections, shifts)]
+    lattice = Lattice(half_edge, REFINED.resolution)
+    points = _hull(current, cleaned, lattice, threshold_px)
+    centres, radius = tube_axis(points, lattice, current, cleaned, REFINED)
+    if len(centres) < _SILHOUETTE_MIN_BALLS:
+        return *unchanged, f"not run: {len(centres)} axis points in the refined hull"
+    fit = fit_silhouettes(projections, [mask_edge_points(m) for m in cleaned], centres, radius, shifts)
+    jacobians = [_jacobian(p) for p in projections]
+    stacked = np.vstack(jacobians)
+    change = (fit.shifts_px - shifts).ravel()
+    common = np.linalg.lstsq(stacked, change, rcond=None)[0]
+    largest = float(np.linalg.norm((change - stacked @ common).reshape(-1, 2), axis=1).max())
+    if not np.isfinite(largest) or largest > _SILHOUETTE_REACH_PX:
+        return *unchanged, f"not kept: it would change a view by {largest:.2f} px"
+    final, further = _gauge(fit.shifts_px, jacobians, moved=_moved(shifts))
+    rms = ", ".join(f"{r:.2f}" for r in fit.residual_rms_px)
+    return final, further, f"applied: outline RMS {rms} px per view, {fit.iterations} iterations"
 
 
 def _support_then_centrelines(projections, masks, centre_lines, jacobians, half_edge, threshold_px, max_shift_px,
