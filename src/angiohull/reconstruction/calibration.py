@@ -135,7 +135,8 @@ JOINT_FIT_MAX_VIEWS = 6
 """Up to this many views the shifts from the view-by-view sweeps are refined by minimising the summed
 centreline cost over all views at once (:func:`.centreline_fit.fit_jointly`); its work grows with
 the square of the number of views (measured on one generated tree, 2 cores: 0.2 s at 3 views, 1.2 s
-at 4, 2.9 s at 6, 53 s at 15). A near-tie of the gauge is always decided that way."""
+at 4, 2.9 s at 6, 53 s at 15). A near-tie of the gauge is always decided that way. The silhouette
+fit (step 8) runs up to this many views too."""
 
 
 _MOVED_PX = 1.0  # a view whose correction is shorter than this counts as unmoved (gauge choice)
