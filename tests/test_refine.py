@@ -30,15 +30,21 @@ def _axis_distance(points, start, end):
     return np.linalg.norm(rel - np.outer(rel @ axis, axis), axis=1)
 
 
-def test_a_straight_tube_is_trimmed_from_a_square_to_its_radius():
-    # A tube along x seen from the front (AP) and from the feet (CRA 90): its hull's cross-section is
-    # the square |y|, |z| <= r (corners at r sqrt 2). The refined hull keeps only points within
-    # r + slack (+ the threshold's widening).
+def _rod():
+    """A tube of radius 2.5 mm along x from -30 to 30 mm, seen from the front (AP) and from the
+    feet (CRA 90): (start, end, radius, projections, masks)."""
     start, end, radius = np.array([-30.0, 0.0, 0.0]), np.array([30.0, 0.0, 0.0]), 2.5
     phantom = TubePhantom((Tube(np.stack([start, end]), radius),), "rod")
     carms = [CArmGeometry(a, b, 1200.0, 800.0, (0.35, 0.35), (512, 512)) for a, b in ((0, 0), (0, 90))]
     projections = [c.projection() for c in carms]
-    masks = [phantom.silhouette(p) for p in projections]
+    return start, end, radius, projections, [phantom.silhouette(p) for p in projections]
+
+
+def test_a_straight_tube_is_trimmed_from_a_square_to_its_radius():
+    # A tube along x seen from the front (AP) and from the feet (CRA 90): its hull's cross-section is
+    # the square |y|, |z| <= r (corners at r sqrt 2). The refined hull keeps only points within
+    # r + slack (+ the threshold's widening).
+    start, end, radius, projections, masks = _rod()
     paper = reconstruct(projections, masks, resolution=256, centerlines=False)
     refined = reconstruct(projections, masks, preset="refined", centerlines=False)
     spacing = refined.lattice_spacing_mm
@@ -166,11 +172,7 @@ def test_tube_axis_of_a_straight_tube_lies_on_its_axis_with_its_radius():
     from angiohull.reconstruction import Lattice
     from angiohull.reconstruction.refine import refine_hull, tube_axis
 
-    start, end, radius = np.array([-30.0, 0.0, 0.0]), np.array([30.0, 0.0, 0.0]), 2.5
-    phantom = TubePhantom((Tube(np.stack([start, end]), radius),), "rod")
-    carms = [CArmGeometry(a, b, 1200.0, 800.0, (0.35, 0.35), (512, 512)) for a, b in ((0, 0), (0, 90))]
-    projections = [c.projection() for c in carms]
-    masks = [phantom.silhouette(p) for p in projections]
+    start, end, radius, projections, masks = _rod()
     carved = reconstruct(projections, masks, resolution=REFINED.resolution, centerlines=False)
     lattice: Lattice = carved.lattice
     axis, radii = tube_axis(carved.vessel_points_mm, lattice, projections, masks)
