@@ -113,7 +113,7 @@ from .cube import Lattice
 from .centreline_fit import (Centreline, consistency_cost, fit_jointly, fit_scales_jointly, fit_view_scale,
                              polish_shifts)
 from .refine import REFINED, clean_mask, tube_axis
-from .silhouette_fit import fit_silhouettes, mask_edge_points
+from .silhouette_fit import fit_silhouettes, largest_off_gauge_px, mask_edge_points
 from .epipolar import two_view_shift
 from .engines import ENGINES
 
@@ -558,14 +558,10 @@ def _silhouette_step(projections: Sequence[Projection], masks: Sequence[np.ndarr
     if len(centres) < _SILHOUETTE_MIN_BALLS:
         return *unchanged, f"not run: {len(centres)} axis points in the refined hull"
     fit = fit_silhouettes(projections, [mask_edge_points(m) for m in cleaned], centres, radius, shifts)
-    jacobians = [_jacobian(p) for p in projections]
-    stacked = np.vstack(jacobians)
-    change = (fit.shifts_px - shifts).ravel()
-    common = np.linalg.lstsq(stacked, change, rcond=None)[0]
-    largest = float(np.linalg.norm((change - stacked @ common).reshape(-1, 2), axis=1).max())
+    largest = largest_off_gauge_px(projections, fit.shifts_px - shifts)
     if not np.isfinite(largest) or largest > _SILHOUETTE_REACH_PX:
         return *unchanged, f"not kept: it would change a view by {largest:.2f} px"
-    final, further = _gauge(fit.shifts_px, jacobians, moved=_moved(shifts))
+    final, further = _gauge(fit.shifts_px, [_jacobian(p) for p in projections], moved=_moved(shifts))
     rms = ", ".join(f"{r:.2f}" for r in fit.residual_rms_px)
     return final, further, f"applied: outline RMS {rms} px per view, {fit.iterations} iterations"
 

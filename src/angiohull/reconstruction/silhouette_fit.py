@@ -44,7 +44,7 @@ from scipy.spatial import cKDTree
 
 from ..geometry import Projection
 
-__all__ = ["SilhouetteFit", "fit_silhouettes", "mask_edge_points"]
+__all__ = ["SilhouetteFit", "fit_silhouettes", "mask_edge_points", "largest_off_gauge_px"]
 
 _NEAREST_DISCS = 16  # discs examined per outline point (the nearest centres)
 _NEIGHBOUR_SPACINGS = 1.75  # balls closer than this many median spacings are tied together
@@ -61,7 +61,7 @@ class SilhouetteFit:
     centres_mm: np.ndarray  # (A, 3) fitted ball centres
     radius_mm: np.ndarray  # (A,) fitted radii
     residual_rms_px: tuple[float, ...]  # per view: RMS distance of the outline points used to the rendered outline
-    edge_points_used: tuple[int, ...]  # per view: outline points within gate_px of the rendered outline
+    edge_points_used: tuple[int, ...]  # per view: outline points used (inside, or less than gate_px outside, the union)
     iterations: int
 
 
@@ -76,15 +76,19 @@ def mask_edge_points(mask: np.ndarray) -> np.ndarray:
     return np.vstack([across, down]).astype(np.float64)
 
 
-def _isocentre_jacobians(projections: Sequence[Projection]) -> np.ndarray:
-    """(2V, 3): the image motion of every view under a 3D translation of the object."""
-    return np.vstack([p.jacobian(np.zeros((1, 3)))[0] for p in projections])
+def largest_off_gauge_px(projections: Sequence[Projection], change_px: np.ndarray) -> float:
+    """The largest per-view length of a change of the views' shifts ``(V, 2)`` once the common 3D
+    translation that best explains it (least squares, image motion at the isocentre) is taken out."""
+    gauge = np.vstack([p.jacobian(np.zeros((1, 3)))[0] for p in projections])
+    change = np.asarray(change_px, dtype=np.float64).ravel()
+    common = np.linalg.lstsq(gauge, change, rcond=None)[0]
+    return float(np.linalg.norm((change - gauge @ common).reshape(-1, 2), axis=1).max())
 
 
 def _outline_residuals(projection: Projection, edges: np.ndarray, centres: np.ndarray, radius: np.ndarray,
                        shift: np.ndarray, gate_px: float):
-    """For the outline points within ``gate_px`` of the rendered outline: (their indices, the disc
-    each is nearest to, the signed distance, the unit direction from that disc's centre, the
+    """For the outline points inside the rendered union or less than ``gate_px`` outside it: (the
+    disc each is nearest to, the signed distance, the unit direction from that disc's centre, the
     projection Jacobian at the disc's ball and its pixels per mm)."""
     uv = projection.project(centres) + shift
     px_per_mm = max(projection.focal_lengths_px) / projection.depth_mm(centres)
@@ -102,7 +106,7 @@ def _outline_residuals(projection: Projection, edges: np.ndarray, centres: np.nd
     disc, signed = disc[used], signed[used]
     direction = edges[used] - uv[disc]
     direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
-    return used, disc, signed, direction, projection.jacobian(centres[disc]), px_per_mm[disc]
+    return disc, signed, direction, projection.jacobian(centres[disc]), px_per_mm[disc]
 
 
 def fit_silhouettes(projections: Sequence[Projection], edge_points: Sequence[np.ndarray], centres_mm: np.ndarray,
@@ -135,17 +139,17 @@ def fit_silhouettes(projections: Sequence[Projection], edge_points: Sequence[np.
     n_balls, n_views = len(centres), len(projections)
     if n_balls < 2:
         raise ValueError(f"the silhouette fit needs at least 2 balls, got {n_balls}")
-    spacing = float(np.median(cKDTree(centres).query(centres, k=2)[0][:, 1]))
-    pairs = cKDTree(centres).query_pairs(_NEIGHBOUR_SPACINGS * spacing, output_type="ndarray")
+    tree = cKDTree(centres)
+    spacing = float(np.median(tree.query(centres, k=2)[0][:, 1]))
+    pairs = tree.query_pairs(_NEIGHBOUR_SPACINGS * spacing, output_type="ndarray")
     a, b = pairs[:, 0], pairs[:, 1]
-    gauge = _isocentre_jacobians(projections)
     n_unknowns = 4 * n_balls + 2 * n_views
     iterations = 0
     for iterations in range(1, max_iterations + 1):
         rows, cols, values, residuals, weights = [], [], [], [], []
         row = 0
         for k, (projection, edges) in enumerate(zip(projections, edge_points)):
-            _, disc, signed, direction, jacobian, px_per_mm = _outline_residuals(
+            disc, signed, direction, jacobian, px_per_mm = _outline_residuals(
                 projection, edges, centres, radius, shifts[k], gate_px)
             m = len(disc)
             here = row + np.arange(m)
@@ -182,12 +186,11 @@ def fit_silhouettes(projections: Sequence[Projection], edge_points: Sequence[np.
         radius = np.maximum(radius + ball_step[:, 3], _MIN_RADIUS_MM)
         shift_step = step[4 * n_balls:].reshape(n_views, 2)
         shifts += shift_step
-        common = np.linalg.lstsq(gauge, shift_step.ravel(), rcond=None)[0]
-        if np.linalg.norm((shift_step.ravel() - gauge @ common).reshape(-1, 2), axis=1).max() < tolerance_px:
+        if largest_off_gauge_px(projections, shift_step) < tolerance_px:
             break
     used, rms = [], []
     for k, (projection, edges) in enumerate(zip(projections, edge_points)):
-        _, _, signed, *_ = _outline_residuals(projection, edges, centres, radius, shifts[k], gate_px)
+        _, signed, *_ = _outline_residuals(projection, edges, centres, radius, shifts[k], gate_px)
         used.append(len(signed))
         rms.append(float(np.sqrt(np.mean(signed ** 2))) if len(signed) else float("nan"))
     return SilhouetteFit(shifts_px=shifts, centres_mm=centres, radius_mm=radius, residual_rms_px=tuple(rms),
