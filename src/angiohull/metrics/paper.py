@@ -1,4 +1,4 @@
-"""Scores of a reconstruction, following the paper's protocol (DESIGN.md, "Metrics").
+"""Scores of a reconstruction following the paper's protocol (DESIGN.md, "Metrics"): voxel sets and reprojections.
 
 Point sets and arrays only: nothing here reads files or runs a reconstruction.
 
@@ -22,10 +22,10 @@ import numpy as np
 from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 
-from . import _validation as _v
-from .errors import AngiohullError
-from .geometry import Projection
-from .rasterise import cell_silhouette, rasterise_points_paper
+from .. import _validation as _v
+from ..errors import AngiohullError
+from ..geometry import Projection
+from ..rasterise import cell_silhouette, rasterise_points_paper
 
 __all__ = [
     "PAPER_VOXEL_MM",
