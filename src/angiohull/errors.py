@@ -11,11 +11,14 @@ __all__ = [
     "AngiohullError",
     "GeometryError",
     "StudyError",
+    "TreeError",
+    "OutputError",
     "ReconstructionError",
     "EmptyHullError",
     "DicomError",
     "SegmentationError",
     "DicomGeometryWarning",
+    "TreeWarning",
 ]
 
 
@@ -44,6 +47,16 @@ class DicomError(StudyError):
 
 class SegmentationError(AngiohullError):
     """The input or the parameters of the vessel segmentation are invalid."""
+
+
+class TreeError(AngiohullError):
+    """A vessel tree is invalid (shapes, non-finite values, radii <= 0, not a tree), or a tree
+    operation got arguments it cannot use (an unwritable export path, a missing true tree)."""
+
+
+class OutputError(AngiohullError):
+    """An output folder or file cannot be written (the message names the path and the reason);
+    nothing of the outputs being written is left behind."""
 
 
 class ReconstructionError(AngiohullError):
@@ -77,3 +90,8 @@ class DicomGeometryWarning(UserWarning):
     e.g. ``IM1.dcm: ImagerPixelSpacing (0018,1164) is missing; assumed 0.390625 x 0.390625 mm from
     FieldOfViewDimensions (0018,1149) = [200, 200] mm over 512 x 512 pixels``.
     """
+
+
+class TreeWarning(UserWarning):
+    """A reconstruction's vessel tree could not be built, or was built from less than the hull
+    (parts dropped); the message says what and why."""

@@ -1,0 +1,355 @@
+"""A vessel tree from the skeleton of a binary volume: graph, gaps, spurs, root and branches.
+
+Input: a one-voxel-wide skeleton (for example scikit-image's 3D ``skeletonize`` of an occupancy
+volume) and a radius estimate per voxel (for example the volume's distance transform). Steps:
+
+1. **Graph.** Skeleton voxels are nodes; 26-neighbours are joined by edges of their length
+   (1, sqrt 2 or sqrt 3 voxels). Thinning leaves small cycles where branches meet (three or four
+   mutually adjacent voxels) and, where the volume has a hole, larger ones; the minimum spanning
+   tree with edge weight ``length / (r_a + r_b)`` removes every cycle at its thinnest edge.
+2. **Gaps.** The largest connected part (by length) is the tree. Other parts are joined to it,
+   largest first, by a straight edge between their closest voxels when that gap is at most
+   ``r_a + r_b + max_gap_voxels`` voxels (the two skeleton ends recede by about a radius each from
+   a hole in the volume). A longer gap is bridged by the path a caller's ``bridge`` finds (the
+   reconstruction searches the carved hull before refinement, where a vessel piece the refined
+   preset dropped is still present); other parts are dropped and counted.
+3. **Spurs.** A terminal segment (from a tip to the first junction) whose length is at most
+   ``spur_radii`` times the radius at its junction is a bump of the surface, not a vessel: it is
+   removed, and the test repeated until no spur is left (each removal can make a new junction a
+   plain point of a longer segment).
+4. **Root.** The tip whose first ``root_window_mm`` of segment have the largest mean radius is the
+   ostium (the proximal end of a coronary tree is its widest end).
+5. **Branches.** From the root, a branch follows the graph; at a junction it continues into the
+   outgoing segment that best continues it (the largest ``cos(turn angle) + radius / largest
+   radius / 2``, directions and radii over ``direction_window_mm``), and every other outgoing
+   segment starts a child branch at the junction voxel (its first point is the parent's point
+   there). Branches are listed parents first.
+
+Positions are voxel centres (``origin_mm + spacing_mm * index``); radii are the given estimates.
+Smoothing, radii from the views and end extension are the caller's business
+(:mod:`angiohull.reconstruction.vessel_tree`).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import scipy.sparse as sparse
+from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
+from scipy.spatial import cKDTree
+
+from ..errors import TreeError
+from .model import Branch, VesselTree
+
+__all__ = ["SkeletonSettings", "SkeletonInfo", "tree_from_skeleton"]
+
+# the 13 forward offsets of the 26-neighbourhood
+_OFFSETS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
+                     if (i, j, k) > (0, 0, 0)], dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class SkeletonSettings:
+    """Parameters of :func:`tree_from_skeleton` (module notes)."""
+
+    spur_radii: float = 2.0  # a terminal segment no longer than this many junction radii is a spur
+    max_gap_voxels: float = 3.0  # parts are joined across gaps up to r_a + r_b + this many voxels
+    root_window_mm: float = 3.0  # the root is the tip with the widest first root_window_mm
+    direction_window_mm: float = 3.0  # directions and radii at a junction are taken over this length
+
+
+@dataclass
+class SkeletonInfo:
+    """What :func:`tree_from_skeleton` did."""
+
+    skeleton_voxels: int = 0
+    parts: int = 0  # connected parts of the skeleton
+    parts_joined: int = 0  # joined to the tree across a gap
+    parts_bridged: int = 0  # of those, by a caller's bridge path
+    parts_dropped: int = 0  # too far from the tree
+    voxels_dropped: int = 0
+    spurs_removed: int = 0
+    cycles_cut: int = 0  # edges the spanning tree removed
+    notes: list[str] = field(default_factory=list)
+
+
+def _edges(voxels: np.ndarray, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    index = np.full(shape, -1, dtype=np.int64)
+    index[tuple(voxels.T)] = np.arange(len(voxels))
+    heads, tails, lengths = [], [], []
+    upper = np.array(shape)
+    for offset in _OFFSETS:
+        other = voxels + offset
+        ok = np.all((other >= 0) & (other < upper), axis=1)
+        j = np.full(len(voxels), -1, dtype=np.int64)
+        j[ok] = index[tuple(other[ok].T)]
+        found = j >= 0
+        heads.append(np.flatnonzero(found))
+        tails.append(j[found])
+        lengths.append(np.full(int(found.sum()), float(np.linalg.norm(offset))))
+    return np.concatenate(heads), np.concatenate(tails), np.concatenate(lengths)
+
+
+def _adjacency(n: int, heads: np.ndarray, tails: np.ndarray) -> list[list[int]]:
+    neighbours: list[list[int]] = [[] for _ in range(n)]
+    for a, b in zip(heads.tolist(), tails.tolist()):
+        neighbours[a].append(b)
+        neighbours[b].append(a)
+    return neighbours
+
+
+def _segments(neighbours: list[list[int]], alive: np.ndarray) -> list[list[int]]:
+    """Paths between nodes whose degree is not 2 (each listed once, from one end to the other)."""
+    degree = np.array([len(nb) for nb in neighbours])
+    ends = [v for v in np.flatnonzero(alive) if degree[v] != 2]
+    seen_edges: set[tuple[int, int]] = set()
+    out = []
+    for start in ends:
+        for first in neighbours[start]:
+            if (start, first) in seen_edges:
+                continue
+            path = [start, first]
+            while degree[path[-1]] == 2:
+                a, b = neighbours[path[-1]]
+                path.append(b if a == path[-2] else a)
+            seen_edges.add((path[0], path[1]))
+            seen_edges.add((path[-1], path[-2]))
+            out.append(path)
+    return out
+
+
+def _path_length(points: np.ndarray, path: list[int]) -> float:
+    return float(np.linalg.norm(np.diff(points[path], axis=0), axis=1).sum())
+
+
+def _window(points: np.ndarray, path: list[int], window_mm: float) -> list[int]:
+    """The leading nodes of ``path`` within ``window_mm`` of arc length (at least two)."""
+    steps = np.linalg.norm(np.diff(points[path], axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(steps)])
+    count = max(2, int(np.searchsorted(arc, window_mm, side="right")))
+    return path[:count]
+
+
+def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm: np.ndarray, spacing_mm: float,
+                       settings: SkeletonSettings = SkeletonSettings(),
+                       bridge: Callable[[np.ndarray, np.ndarray], np.ndarray | None] | None = None,
+                       ) -> tuple[VesselTree, SkeletonInfo]:
+    """The vessel tree of a skeleton (module notes).
+
+    Parameters
+    ----------
+    skeleton : (X, Y, Z) bool array
+        One-voxel-wide skeleton.
+    radius_mm : (X, Y, Z) or (N,) float array
+        Radius estimate at each voxel, mm (> 0 on the skeleton), or at the N skeleton voxels in
+        ``np.argwhere(skeleton)`` order.
+    origin_mm : (3,) array
+        Centre of voxel (0, 0, 0), mm.
+    spacing_mm : float
+        Voxel edge, mm.
+    settings : SkeletonSettings
+    bridge : callable, optional
+        ``bridge(part_mm (P, 3), tree_mm (T, 3)) -> (L, 3) array or None``: a path (L >= 2 points,
+        mm) from one of the part's voxels to one of the tree's across a gap longer than the
+        small-gap rule, or None where there is none (for example: the shortest path through a
+        wider hull). Without it, such parts are dropped.
+
+    Returns
+    -------
+    tree : VesselTree
+    info : SkeletonInfo
+
+    Raises
+    ------
+    TreeError
+        If the skeleton has fewer than two voxels (no branch can be built).
+    """
+    skeleton = np.asarray(skeleton, dtype=bool)
+    if skeleton.ndim != 3:
+        raise TreeError(f"skeleton must be a 3D bool array, got shape {skeleton.shape}")
+    voxels = np.argwhere(skeleton)
+    info = SkeletonInfo(skeleton_voxels=len(voxels))
+    if len(voxels) < 2:
+        raise TreeError(f"the skeleton has {len(voxels)} voxel(s); a vessel tree needs at least two")
+    points = np.asarray(origin_mm, dtype=np.float64) + spacing_mm * voxels
+    radius = np.asarray(radius_mm, dtype=np.float64)
+    if radius.shape == skeleton.shape:
+        radius = radius[tuple(voxels.T)]
+    elif radius.shape != (len(voxels),):
+        raise TreeError(f"radius_mm must have the skeleton's shape {skeleton.shape} or one value per skeleton "
+                        f"voxel ({len(voxels)},), got shape {radius.shape}")
+    radius = np.maximum(radius, 0.5 * spacing_mm)
+    n = len(voxels)
+
+    # 1. graph and spanning tree
+    heads, tails, lengths = _edges(voxels, skeleton.shape)
+    weights = lengths / (radius[heads] + radius[tails])
+    graph = sparse.coo_matrix((weights, (heads, tails)), shape=(n, n)).tocsr()
+    spanning = minimum_spanning_tree(graph).tocoo()
+    info.cycles_cut = int(len(heads) - spanning.nnz)
+    heads, tails = spanning.row.astype(np.int64), spanning.col.astype(np.int64)
+    edge_length = np.linalg.norm(points[heads] - points[tails], axis=1)
+
+    # 2. parts, joined across small gaps
+    count, part = connected_components(sparse.coo_matrix((np.ones(len(heads)), (heads, tails)), shape=(n, n)),
+                                       directed=False)
+    info.parts = int(count)
+    part_length = np.bincount(part[heads], weights=edge_length, minlength=count).astype(np.float64)
+    part_length += 1e-9 * np.bincount(part, minlength=count)  # single voxels: order by size
+    order = np.argsort(-part_length, kind="stable")
+    alive = part == order[0]
+    extra_heads, extra_tails = [], []
+    extra_points: list[np.ndarray] = []
+    extra_radius: list[np.ndarray] = []
+    for p in order[1:]:
+        members = np.flatnonzero(part == p)
+        kept = np.flatnonzero(alive[:n])
+        distance, nearest = cKDTree(points[kept]).query(points[members])
+        i = int(np.argmin(distance))
+        a, b = members[i], kept[nearest[i]]
+        if distance[i] <= radius[a] + radius[b] + settings.max_gap_voxels * spacing_mm:
+            extra_heads.append(a)
+            extra_tails.append(b)
+        else:
+            path = None if bridge is None else bridge(points[members], points[kept])
+            if path is None or len(path) < 2:
+                info.parts_dropped += 1
+                info.voxels_dropped += len(members)
+                continue
+            path = np.asarray(path, dtype=np.float64)
+            a = members[int(np.argmin(np.linalg.norm(points[members] - path[0], axis=1)))]
+            b = kept[int(np.argmin(np.linalg.norm(points[kept] - path[-1], axis=1)))]
+            inner = path[1:-1]
+            first = n + sum(len(x) for x in extra_points)
+            chain = [a, *range(first, first + len(inner)), b]
+            extra_points.append(inner)
+            extra_radius.append(np.interp(np.arange(1, len(inner) + 1), [0, len(inner) + 1], [radius[a], radius[b]]))
+            extra_heads.extend(chain[:-1])
+            extra_tails.extend(chain[1:])
+            info.parts_bridged += 1
+        alive[members] = True
+        info.parts_joined += 1
+    if extra_points:
+        added = sum(len(x) for x in extra_points)
+        points = np.vstack([points, *extra_points])
+        radius = np.concatenate([radius, *extra_radius])
+        alive = np.concatenate([alive, np.ones(added, dtype=bool)])
+        n += added
+    heads = np.concatenate([heads, np.array(extra_heads, dtype=np.int64)])
+    tails = np.concatenate([tails, np.array(extra_tails, dtype=np.int64)])
+    keep = alive[heads] & alive[tails]
+    neighbours = _adjacency(n, heads[keep], tails[keep])
+    if int(alive.sum()) < 2:
+        raise TreeError("the skeleton's largest part is a single voxel; a vessel tree needs at least two")
+
+    # 3. spurs
+    while True:
+        segments = _segments(neighbours, alive)
+        degree = np.array([len(nb) for nb in neighbours])
+        removed = False
+        for path in segments:
+            tip_first = degree[path[0]] == 1 and degree[path[-1]] >= 3
+            tip_last = degree[path[-1]] == 1 and degree[path[0]] >= 3
+            if not (tip_first or tip_last):
+                continue
+            junction = path[-1] if tip_first else path[0]
+            if _path_length(points, path) <= settings.spur_radii * radius[junction]:
+                if degree[junction] < 3:  # an earlier removal in this round changed it
+                    continue
+                inner = path[:-1] if tip_first else path[1:]
+                for v in inner:
+                    for w in neighbours[v]:
+                        neighbours[w].remove(v)
+                    neighbours[v] = []
+                    alive[v] = False
+                degree = np.array([len(nb) for nb in neighbours])
+                info.spurs_removed += 1
+                removed = True
+        if not removed:
+            break
+
+    # 4. root: the widest tip
+    degree = np.array([len(nb) for nb in neighbours])
+    segments = _segments(neighbours, alive)
+    tips = []
+    for path in segments:
+        for oriented in (path, path[::-1]):
+            if degree[oriented[0]] == 1:
+                window = _window(points, oriented, settings.root_window_mm)
+                tips.append((float(radius[window].mean()), oriented[0]))
+    if tips:
+        root = max(tips)[1]
+    else:  # a closed loop cannot survive the spanning tree; a lone point has no tip
+        root = int(np.flatnonzero(alive)[0])
+
+    # 5. branches, parents first
+    ahead_nodes = int(np.ceil(settings.direction_window_mm / spacing_mm)) + 2
+    branches: list[Branch] = []
+    queue: deque[tuple[list[int], int | None, int | None]] = deque([([root], None, None)])
+    visited = np.zeros(n, dtype=bool)
+    visited[root] = True
+    while queue:
+        path, parent, parent_point = queue.popleft()
+        own = len(branches)
+        branches.append(None)  # type: ignore[arg-type]  # placeholder, filled below
+        while True:
+            here = path[-1]
+            onward = [w for w in neighbours[here] if not visited[w]]
+            if not onward:
+                break
+            if len(onward) == 1:
+                nxt = onward[0]
+            else:
+                nxt = _continuation(points, radius, neighbours, visited, path, onward, settings.direction_window_mm,
+                                   ahead_nodes)
+                for w in onward:
+                    if w != nxt:
+                        visited[w] = True
+                        queue.append(([here, w], own, len(path) - 1))
+            visited[nxt] = True
+            path.append(nxt)
+        if len(path) < 2:
+            if parent is None:
+                raise TreeError("the skeleton's tree has a single voxel; a vessel tree needs at least two")
+            continue
+        branches[own] = Branch(points[path], radius[path], parent, parent_point, f"b{own}")
+    kept = [b for b in branches if b is not None]
+    if len(kept) != len(branches):  # pragma: no cover - a child always has its first step
+        raise TreeError("internal: a branch of the skeleton's tree was empty")
+    return VesselTree(tuple(kept)), info
+
+
+def _follow(neighbours: list[list[int]], visited: np.ndarray, start: int, first: int, nodes: int) -> list[int]:
+    """Up to ``nodes`` nodes from ``start`` through ``first`` along unvisited nodes (first choice at
+    junctions): enough to estimate a direction."""
+    path = [start, first]
+    while len(path) < nodes:
+        onward = [w for w in neighbours[path[-1]] if w != path[-2] and not visited[w]]
+        if not onward:
+            break
+        path.append(onward[0])
+    return path
+
+
+def _continuation(points: np.ndarray, radius: np.ndarray, neighbours: list[list[int]], visited: np.ndarray,
+                  path: list[int], onward: list[int], window_mm: float, nodes: int) -> int:
+    """The outgoing neighbour that best continues ``path`` (module notes, step 5)."""
+    here = path[-1]
+    back = _window(points, path[::-1], window_mm)
+    incoming = points[here] - points[back[-1]]
+    scores = []
+    widths = []
+    directions = []
+    for w in onward:
+        ahead = _window(points, _follow(neighbours, visited, here, w, nodes), window_mm)
+        directions.append(points[ahead[-1]] - points[here])
+        widths.append(float(radius[ahead[1:]].mean()))
+    widest = max(widths)
+    for direction, width in zip(directions, widths):
+        norm = np.linalg.norm(incoming) * np.linalg.norm(direction)
+        cosine = float(incoming @ direction / norm) if norm > 0 else 0.0
+        scores.append(cosine + 0.5 * width / widest)
+    return onward[int(np.argmax(scores))]

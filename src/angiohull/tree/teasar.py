@@ -1,0 +1,125 @@
+"""Centerline paths through a binary volume (the TEASAR idea of Sato et al., 2000).
+
+scikit-image's 3D thinning (Lee et al.) can delete whole pieces of a tubular object (measured here:
+the thinned hull of a Y-shaped tube kept 98 voxels of the ~230 its axes need; scikit-image issue
+#3757), and a skeleton with a hole where a vessel was cannot be repaired afterwards. Paths of a
+shortest-path tree, in contrast, always reach every part of the volume they are asked to:
+
+1. ``dbf`` (distance from boundary): the distance of every voxel of the volume to the nearest voxel
+   outside it.
+2. One shortest-path tree (Dijkstra) per connected part of the volume (26-neighbourhood), from the
+   part's deepest voxel, with edge costs ``length / (mean dbf of the two voxels)**2``: deep
+   voxels are cheap, so paths run along the middle of the vessels.
+3. Repeatedly, the voxel farthest (in that cost) from the root among those not yet *covered* is a
+   new target: its path back to the root, up to the first voxel already on the skeleton, joins the
+   skeleton, and every voxel within ``ball_scale * dbf + ball_voxels`` of a voxel of the new path
+   becomes covered. The loop ends when every voxel is covered.
+
+The result is a set of paths that reaches the end of every vessel (thinning stops short of them),
+with no hole; small side paths where the surface bulges are possible and are the spur pruning's
+business (:func:`angiohull.tree.skeleton.tree_from_skeleton`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sparse
+from scipy import ndimage as ndi
+from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
+
+from ..errors import TreeError
+
+__all__ = ["teasar_skeleton"]
+
+_OFFSETS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
+                     if (i, j, k) > (0, 0, 0)], dtype=np.int64)
+
+
+def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5,
+                    ball_voxels: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """Centerline paths of a 3D bool volume (module notes).
+
+    Parameters
+    ----------
+    volume : (X, Y, Z) bool array
+    ball_scale, ball_voxels : float, keyword-only
+        A path covers the voxels within ``ball_scale * dbf + ball_voxels`` (voxels) of its voxels.
+
+    Returns
+    -------
+    skeleton : (X, Y, Z) bool array
+        The voxels of the paths.
+    dbf : (N,) float array
+        Distance (voxels) from each skeleton voxel, in ``np.argwhere(skeleton)`` order, to the
+        nearest voxel outside the volume.
+    """
+    volume = np.asarray(volume, dtype=bool)
+    if volume.ndim != 3:
+        raise TreeError(f"volume must be a 3D bool array, got shape {volume.shape}")
+    skeleton = np.zeros(volume.shape, dtype=bool)
+    voxels = np.argwhere(volume)
+    n = len(voxels)
+    if n == 0:
+        return skeleton, np.zeros(0)
+    # 1. distance from the boundary: to the nearest outside voxel next to the volume (a k-d tree on
+    # those few voxels costs a fraction of a full distance transform of the box)
+    padded = np.pad(volume, 1)
+    grown = padded.view(np.uint8)
+    for axis in range(3):
+        grown = ndi.maximum_filter1d(grown, 3, axis=axis, mode="constant", cval=0)
+    shell = np.argwhere(grown.astype(bool) & ~padded) - 1
+    dbf, _ = cKDTree(shell).query(voxels, workers=-1)
+
+    # 2. the voxel graph and its shortest-path forest from each part's deepest voxel
+    index = np.full(volume.shape, -1, dtype=np.int64)
+    index[tuple(voxels.T)] = np.arange(n)
+    heads, tails, lengths = [], [], []
+    upper = np.array(volume.shape)
+    for offset in _OFFSETS:
+        other = voxels + offset
+        ok = np.all((other >= 0) & (other < upper), axis=1)
+        j = np.full(n, -1, dtype=np.int64)
+        j[ok] = index[tuple(other[ok].T)]
+        found = j >= 0
+        heads.append(np.flatnonzero(found))
+        tails.append(j[found])
+        lengths.append(np.full(int(found.sum()), float(np.linalg.norm(offset))))
+    heads, tails, lengths = np.concatenate(heads), np.concatenate(tails), np.concatenate(lengths)
+    cost = lengths / (0.5 * (dbf[heads] + dbf[tails])) ** 2
+    graph = sparse.coo_matrix((cost, (heads, tails)), shape=(n, n)).tocsr()
+    parts, label = connected_components(graph, directed=False)
+    by_part = np.lexsort((-dbf, label))  # each part's voxels, deepest first
+    roots = by_part[np.flatnonzero(np.r_[True, np.diff(label[by_part]) != 0])]
+    distance, predecessor, _ = dijkstra(graph, directed=False, indices=roots, min_only=True,
+                                        return_predecessors=True)
+
+    # 3. paths to the farthest uncovered voxel until every voxel is covered
+    on_path = np.zeros(n, dtype=bool)
+    on_path[roots] = True
+    covered = np.zeros(n, dtype=bool)
+    search = cKDTree(voxels)
+    for root in roots:
+        covered[search.query_ball_point(voxels[root], ball_scale * dbf[root] + ball_voxels)] = True
+    iterations = 0
+    while True:
+        iterations += 1
+        uncovered = np.flatnonzero(~covered)
+        if len(uncovered) == 0:
+            break
+        target = int(uncovered[np.argmax(distance[uncovered])])
+        path = [target]
+        while not on_path[path[-1]]:
+            step = predecessor[path[-1]]
+            if step < 0:  # a root (always on the path)
+                break
+            path.append(step)
+        path = np.array(path)
+        on_path[path] = True
+        hits = search.query_ball_point(voxels[path], ball_scale * dbf[path] + ball_voxels, return_sorted=False)
+        covered[np.concatenate([np.asarray(h, dtype=np.int64) for h in hits])] = True
+        covered[path] = True
+    chosen = np.flatnonzero(on_path)
+    skeleton[tuple(voxels[chosen].T)] = True
+    # np.argwhere order is the voxels' C order, as chosen (voxels came from np.argwhere too)
+    return skeleton, dbf[chosen]
