@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from .paper import (PAPER_DETECTOR_SPACING_MM, PAPER_VOXEL_MM, Scores3D, chamfer_mm, dice2d, dice2d_paper,
                     dice2d_plain, dice3d, iou3d, paper_dilation_side_px, scores_3d, voxel_centres_mm, voxelise)
+from .tree import TreeScores, centerline_samples, distance_to_centerline, overlap_key, tree_scores
 
 __all__ = [
     "PAPER_VOXEL_MM",
@@ -26,4 +27,9 @@ __all__ = [
     "dice2d_plain",
     "Scores3D",
     "scores_3d",
+    "TreeScores",
+    "tree_scores",
+    "centerline_samples",
+    "distance_to_centerline",
+    "overlap_key",
 ]
