@@ -40,7 +40,7 @@ def test_reconstruct_writes_ply_report_and_figure(tmp_path, capsys):
     assert report["n_vessel_points"] == len(vessel) > 0
     assert report["options"] == {"resolution": 40, "threshold_px": 1.0, "engine": "auto", "centerlines": True,
                                  "device": "cpu", "min_views": None, "calibrate": False,
-                                 "calibrate_scale": False, "preset": "paper"}
+                                 "calibrate_scale": False, "preset": "paper", "tree": True}
     assert report["engine"] == "octree"
     assert [v["name"] for v in report["views"]] == ["ap", "lao90"]
     assert all(v["dice2d_reprojection"] > 80 for v in report["views"])
@@ -53,7 +53,8 @@ def test_reconstruct_writes_ply_report_and_figure(tmp_path, capsys):
 def test_reconstruct_without_centerlines_and_figure(tmp_path):
     study = ball_study(tmp_path / "study")
     out = tmp_path / "out"
-    assert main(["reconstruct", str(study), "-o", str(out), "-k", "20", "--no-centerlines", "--no-figure", "-q"]) == 0
+    assert main(["reconstruct", str(study), "-o", str(out), "-k", "20", "--no-centerlines", "--no-figure", "--no-tree",
+                 "-q"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["report.json", "vessel.ply"]
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Sequence, TextIO
 
 from . import __version__
-from .errors import AngiohullError, DicomGeometryWarning
+from .errors import AngiohullError, DicomGeometryWarning, TreeWarning
 from .reconstruction import AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES, PRESETS
 from .reconstruction.refine import REFINED
 from .synthetic.render import RASTERISERS
@@ -72,23 +72,34 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"angiohull {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("reconstruct", help="reconstruct a study folder and write PLY, report and figure",
-                       description="Carve the visual hull of a study's masks; write vessel.ply, centerlines.ply, "
-                                   "report.json and figure.png into OUT_DIR.")
+    p = sub.add_parser("reconstruct", help="reconstruct a study folder and write PLY, tree exports, report and figure",
+                       description="Carve the visual hull of a study's masks and build its vessel tree; write "
+                                   "vessel.ply, centerlines.ply, the tree (centerlines.vtp, tree.swc, tree.json), its "
+                                   "surface (vessel.stl) and lumen labels (lumen.nii.gz), report.json and figure.png "
+                                   "into OUT_DIR.")
     p.add_argument("study", type=Path, metavar="STUDY_DIR", help="study folder (or its study.yaml)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="OUT_DIR", help="folder for the outputs")
     _add_reconstruction_options(p)
     _add_beyond_paper_options(p)
-    p.add_argument("--no-centerlines", action="store_true", help="skip the centerline extraction")
+    p.add_argument("--no-centerlines", action="store_true", help="skip the centerline extraction (centerlines.ply)")
+    p.add_argument("--no-tree", action="store_true",
+                   help="skip the vessel tree and its exports (centerlines.vtp, tree.swc, tree.json, vessel.stl, "
+                        "lumen.nii.gz)")
     p.add_argument("--no-figure", action="store_true", help="do not draw figure.png")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
     p = sub.add_parser("evaluate", help="reconstruct a study and score it against its ground truth",
                        description="Reconstruct a study and score it: Dice3D, IoU3D, Chamfer (3 mm voxels), "
-                                   "Dice2D (paper protocol and plain), time of the reconstruction alone.")
+                                   "Dice2D (paper protocol and plain), time of the reconstruction alone; with a true "
+                                   "vessel tree (ground_truth_tree: in study.yaml, or --ground-truth-tree) also the "
+                                   "tree scores: centerline distance, overlap Ot(d), clDice, radius error, branch "
+                                   "recall and precision, bifurcations (docs/vessel-tree.md).")
     p.add_argument("study", type=Path, metavar="STUDY_DIR", help="study folder with a ground_truth")
     _add_reconstruction_options(p)
     _add_beyond_paper_options(p)
+    p.add_argument("--ground-truth-tree", type=Path, default=None, metavar="FILE",
+                   help="the true vessel tree to score against (gt_centerlines.npz of angiohull synth, the authors' "
+                        "gt_centerlines.npy, or a tree.json); overrides the study's ground_truth_tree:")
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
 
     p = sub.add_parser("demo", help="run the whole pipeline on a built-in synthetic RCA tree",
@@ -130,9 +141,29 @@ def build_parser() -> argparse.ArgumentParser:
 def _format_scores(scores: dict) -> str:
     def fmt(value, unit="", digits=2):
         return "n/a" if value is None else f"{value:.{digits}f}{unit}"
-    return (f"Dice3D {fmt(scores['dice3d'], ' %')}  IoU3D {fmt(scores['iou3d'], ' %')}  "
+    text = (f"Dice3D {fmt(scores['dice3d'], ' %')}  IoU3D {fmt(scores['iou3d'], ' %')}  "
             f"Chamfer {fmt(scores['chamfer_mm'], ' mm', 3)}  Dice2D(paper) {fmt(scores['dice2d_paper'], ' %')}  "
             f"Dice2D(plain) {fmt(scores['dice2d'], ' %')}  time {fmt(scores['time_s'], ' s', 3)}  points {scores['n_points']}")
+    if "centerline_mean_mm" in scores:
+        text += (f"\ntree: centerline mean {fmt(scores['centerline_mean_mm'], ' mm', 3)}  p95 "
+                 f"{fmt(scores['centerline_p95_mm'], ' mm', 2)}  Ot(1 mm) {fmt(scores['ot1mm'], '', 3)}  clDice "
+                 f"{fmt(scores['cldice'], '', 3)}  radius MAE {fmt(scores['radius_mae_mm'], ' mm', 3)} (bias "
+                 f"{fmt(scores['radius_bias_mm'], ' mm', 3)})  branches found {scores['branches_found']} of "
+                 f"{scores['branches_true']}  bifurcations matched {scores['bifurcations_matched']} of "
+                 f"{scores['bifurcations_true']}")
+        if scores.get("tree_error"):
+            text += f" (no tree: {scores['tree_error']})"
+    return text
+
+
+def _format_tree(report: dict) -> str | None:
+    tree = report.get("tree")
+    if not tree:
+        return None
+    if not tree.get("built"):
+        return f"no vessel tree: {tree.get('error')}"
+    return (f"vessel tree: {tree['n_branches']} branches, {tree['n_bifurcations']} bifurcations, "
+            f"{tree['length_mm']:.1f} mm, radius {tree['radius_min_mm']:.2f}-{tree['radius_max_mm']:.2f} mm")
 
 
 def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, figure: bool, score: bool):
@@ -151,6 +182,12 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
     result = workflow.reconstruct_study(study, options)
     progress(f"kept {len(result.vessel_points_mm)} of {result.lattice.n_points} lattice points "
              f"(carving {result.timings_s['carve']:.3f} s)")
+    if options.tree:
+        if result.tree is not None:
+            progress(f"vessel tree: {result.tree.n_branches} branches, {len(result.tree.bifurcations)} bifurcations, "
+                     f"{result.tree.length_mm:.1f} mm ({result.timings_s.get('tree', 0.0):.3f} s)")
+        else:
+            warnings.warn(f"no vessel tree: {result.tree_error}", TreeWarning, stacklevel=1)
     silhouettes = workflow.view_silhouettes(study, result)
     scores = workflow.json_safe(workflow.evaluation_scores(study, result, silhouettes)) if score else None
     report = workflow.build_report(study, result, options, silhouettes, scores)
@@ -182,12 +219,15 @@ def _cmd_reconstruct(args) -> int:
     study = load_study(args.study)
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines, args.device,
                                  min_views=args.min_views, calibrate=args.calibrate,
-                                 calibrate_scale=args.calibrate_scale, preset=args.preset)
+                                 calibrate_scale=args.calibrate_scale, preset=args.preset, tree=not args.no_tree)
     _, report, _ = _run_study(study, options, args.output, progress, figure=not args.no_figure, score=False)
     if not args.quiet:
         per_view = ", ".join(f"{v['name']} {v['dice2d_reprojection']:.1f} %" for v in report["views"])
         print(f"{report['n_vessel_points']} vessel points, {report['n_centerline_points']} centerline points; "
               f"reprojection Dice2D: {per_view}")
+        tree_line = _format_tree(report)
+        if tree_line:
+            print(tree_line)
     return 0
 
 
@@ -199,9 +239,17 @@ def _cmd_evaluate(args) -> int:
     study = load_study(args.study)
     if study.ground_truth_mm is None:
         raise AngiohullError(f"{args.study}: the study has no ground truth; add 'ground_truth: gt.npy' to its study.yaml")
+    if args.ground_truth_tree is not None:
+        from dataclasses import replace
+
+        from .exports import read_true_tree
+
+        study = replace(study, ground_truth_tree=read_true_tree(args.ground_truth_tree),
+                        ground_truth_tree_path=args.ground_truth_tree)
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=False, device=args.device,
                                  min_views=args.min_views, calibrate=args.calibrate,
-                                 calibrate_scale=args.calibrate_scale, preset=args.preset)
+                                 calibrate_scale=args.calibrate_scale, preset=args.preset,
+                                 tree=study.ground_truth_tree is not None)
     _, _, scores = _run_study(study, options, None, progress, figure=False, score=True)
     if args.json:
         print(json.dumps(scores))
@@ -224,7 +272,8 @@ def _cmd_demo(args) -> int:
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=True, device=args.device)
     _, report, scores = _run_study(study, options, out, progress, figure=True, score=True)
     print(_format_scores(scores))
-    print(f"outputs in {out}/: vessel.ply, centerlines.ply, report.json, figure.png; the study is in {out}/study/")
+    print(f"outputs in {out}/: vessel.ply, centerlines.ply, centerlines.vtp, tree.swc, tree.json, vessel.stl, "
+          f"lumen.nii.gz, report.json, figure.png; the study is in {out}/study/")
     return 0
 
 
@@ -405,7 +454,7 @@ class _WarningPrinter:
         self.python = warnings.showwarning
 
     def __call__(self, message, category, filename, lineno, file=None, line=None) -> None:
-        if not issubclass(category, DicomGeometryWarning):
+        if not issubclass(category, (DicomGeometryWarning, TreeWarning)):
             self.python(message, category, filename, lineno, file, line)
         elif str(message) not in self.seen:
             self.seen.add(str(message))
@@ -491,6 +540,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.showwarning = _WarningPrinter()
             warnings.simplefilter("always", DicomGeometryWarning)  # the printer shows each message once
+            warnings.simplefilter("always", TreeWarning)
             return _COMMANDS[args.command](args)
     except AngiohullError as error:
         print(f"angiohull {args.command}: error: {error}", file=sys.stderr)

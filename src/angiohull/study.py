@@ -15,6 +15,7 @@ A study is a folder with a ``study.yaml``::
         frame: 12                     # optional frame index (from 0); default: chosen automatically
         segmentation: {high_threshold: 0.25}   # optional overrides of SegmentationParameters
     ground_truth: gt.npy              # optional: (N, 3) points in mm (.npy or .ply)
+    ground_truth_tree: gt_centerlines.npz   # optional: the true vessel tree (.npz, .npy or .json)
 
 Each view has exactly one geometry source (``carm``, ``projection_matrix`` or ``dicom``) and
 exactly one of ``mask`` (a binary vessel mask) and ``image`` (segmented with
@@ -37,11 +38,12 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from . import _validation as _v
-from . import dicom, io
+from . import dicom, exports, io
 from .errors import DicomError, GeometryError, SegmentationError, StudyError
 from ._models import find_model, short_repr
 from .geometry import CArmGeometry, Projection
 from .segmentation import SegmentationParameters, segment_vessels
+from .tree import VesselTree
 
 __all__ = ["View", "Study", "load_study", "save_study", "study_from_dicom", "DicomViewSummary", "FORMAT_VERSION",
            "STUDY_FILE"]
@@ -194,12 +196,18 @@ class Study:
         Ground-truth points in mm (world frame of DESIGN.md), stored read-only.
     ground_truth_path : Path or None
         The file the ground truth was read from.
+    ground_truth_tree : VesselTree or None
+        The true vessel tree (centerlines with radii), when the study has one.
+    ground_truth_tree_path : Path or None
+        The file it was read from.
     """
 
     root: Optional[Path]
     views: tuple[View, ...]
     ground_truth_mm: Optional[np.ndarray] = None
     ground_truth_path: Optional[Path] = None
+    ground_truth_tree: Optional[VesselTree] = None
+    ground_truth_tree_path: Optional[Path] = None
 
     def __post_init__(self) -> None:
         views = tuple(self.views)
@@ -209,6 +217,8 @@ class Study:
             points = _points(self.ground_truth_mm, "study: ground_truth_mm")
             points.setflags(write=False)
             object.__setattr__(self, "ground_truth_mm", points)
+        if self.ground_truth_tree is not None and not isinstance(self.ground_truth_tree, VesselTree):
+            raise StudyError(f"study: ground_truth_tree must be a VesselTree, got {type(self.ground_truth_tree).__name__}")
 
     @property
     def projections(self) -> tuple[Projection, ...]:
@@ -318,6 +328,7 @@ class _StudyFile(_Strict):
     angiohull: int
     views: Annotated[list[_ViewEntry], Field(min_length=1)]
     ground_truth: Optional[_Text] = None
+    ground_truth_tree: Optional[_Text] = None
 
     @field_validator("angiohull")
     @classmethod
@@ -578,6 +589,14 @@ def _load_ground_truth(relative: str, root: Path) -> tuple[np.ndarray, Path]:
         raise _Problem("ground_truth", str(exc)) from None
 
 
+def _load_ground_truth_tree(relative: str, root: Path) -> tuple[VesselTree, Path]:
+    path = root / relative
+    try:
+        return exports.read_true_tree(path), path
+    except StudyError as exc:
+        raise _Problem("ground_truth_tree", str(exc)) from None
+
+
 def load_study(folder: Union[str, Path]) -> Study:
     """Read and check a study folder.
 
@@ -602,7 +621,7 @@ def load_study(folder: Union[str, Path]) -> Study:
         than 1, zero or two geometry sources in a view, zero or two of mask/image, duplicate view
         names, missing, unreadable or empty masks, an image whose segmentation finds no vessel or
         bad segmentation overrides, an unusable DICOM file (named tag), invalid C-arm parameters
-        or matrices, and an unreadable ground truth.
+        or matrices, and an unreadable ground truth or true tree.
 
     Warns
     -----
@@ -625,8 +644,15 @@ def load_study(folder: Union[str, Path]) -> Study:
             ground_truth, ground_truth_path = _load_ground_truth(entries.ground_truth, root)
         except _Problem as problem:
             problems.append((problem.field, problem.message))
+    tree, tree_path = None, None
+    if entries.ground_truth_tree is not None:
+        try:
+            tree, tree_path = _load_ground_truth_tree(entries.ground_truth_tree, root)
+        except _Problem as problem:
+            problems.append((problem.field, problem.message))
     _raise_problems(yaml_path, problems)
-    return Study(root=root, views=tuple(views), ground_truth_mm=ground_truth, ground_truth_path=ground_truth_path)
+    return Study(root=root, views=tuple(views), ground_truth_mm=ground_truth, ground_truth_path=ground_truth_path,
+                 ground_truth_tree=tree, ground_truth_tree_path=tree_path)
 
 
 # -- saving ---------------------------------------------------------------------------------
@@ -675,6 +701,7 @@ def save_study(
     *,
     ground_truth_mm: Optional[Any] = None,
     mask_format: str = "png",
+    ground_truth_tree_file: Optional[str] = None,
 ) -> Path:
     """Write a study folder that :func:`load_study` reads back exactly.
 
@@ -693,6 +720,9 @@ def save_study(
         Ground-truth points in mm, written to ``gt.npy``.
     mask_format : {"png", "tiff", "tif", "npy"}
         Format of ``masks/<name>.<ext>``.
+    ground_truth_tree_file : str, optional
+        A file holding the true vessel tree, relative to the folder (e.g. ``gt_centerlines.npz``,
+        which the caller writes): recorded as ``ground_truth_tree:``.
 
     Returns
     -------
@@ -728,6 +758,8 @@ def save_study(
     if points is not None:
         _save_points(folder / _GROUND_TRUTH_FILE, points)
         document["ground_truth"] = _GROUND_TRUTH_FILE
+    if ground_truth_tree_file is not None:
+        document["ground_truth_tree"] = str(ground_truth_tree_file)
     return _write_yaml(folder / STUDY_FILE, document)
 
 

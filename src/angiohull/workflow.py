@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import platform
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -22,9 +23,12 @@ from .metrics import PAPER_DETECTOR_SPACING_MM, dice2d, dice2d_paper, paper_dila
 from .rasterise import cell_silhouette
 from .reconstruction import DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ReconstructionResult, reconstruct
 from .reconstruction.calibration import Calibration, calibrate_shifts, shift_projection
+from .errors import AngiohullError, OutputError, StudyError
 from .study import Study, View
+from .tree import VesselTree
 
-__all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_silhouettes", "evaluation_scores", "build_report", "write_outputs", "json_safe"]
+__all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_silhouettes", "evaluation_scores",
+           "tree_evaluation_scores", "tree_summary", "build_report", "write_outputs", "json_safe"]
 
 
 @dataclass(frozen=True)
@@ -40,6 +44,7 @@ class ReconstructOptions:
     calibrate: bool = False  # estimate per-view image shifts first (calibrate_study)
     calibrate_scale: bool = False  # also per-view image scales (implies calibrate; three views or more)
     preset: str = "paper"  # "paper" (as published) or "refined" (reconstruction.refine)
+    tree: bool = True  # build the vessel tree (and, when writing outputs, its mesh, label volume and exports)
 
     def __post_init__(self) -> None:
         if self.calibrate_scale and not self.calibrate:  # scales are estimated with the shifts
@@ -52,7 +57,7 @@ def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOpt
         study.projections, study.masks,
         resolution=options.resolution, threshold_px=options.threshold_px, engine=options.engine,
         centerlines=options.centerlines, view_names=study.names, device=options.device, min_views=options.min_views,
-        preset=options.preset,
+        preset=options.preset, tree=options.tree,
     )
 
 
@@ -92,12 +97,15 @@ def _detector_spacing_mm(view) -> float | None:
 
 
 def evaluation_scores(study: Study, result: ReconstructionResult, silhouettes: list[np.ndarray]) -> dict[str, Any]:
-    """The scores of ``angiohull evaluate``: 3D against the ground truth, 2D against the masks.
+    """The scores of ``angiohull evaluate``: 3D against the ground truth, 2D against the masks, and,
+    when the study has a true tree, the tree scores (:func:`tree_evaluation_scores`).
 
     ``silhouettes`` are the reconstruction's silhouettes from :func:`view_silhouettes`.
 
     Keys: ``dice3d``, ``iou3d`` (percent), ``chamfer_mm``, ``dice2d_paper``, ``dice2d`` (percent,
-    mean over views), ``time_s`` (the reconstruction alone), ``n_points``.
+    mean over views), ``time_s`` (the reconstruction alone), ``n_points``; with a true tree, every
+    key of :meth:`~angiohull.metrics.tree.TreeScores.as_dict` (shares in [0, 1], distances in mm)
+    and ``tree_s`` (time to build the tree).
     """
     if study.ground_truth_mm is None:
         raise ValueError("the study has no ground truth; add 'ground_truth: gt.npy' to its study.yaml")
@@ -105,7 +113,7 @@ def evaluation_scores(study: Study, result: ReconstructionResult, silhouettes: l
     paper = dice2d_paper(result.vessel_points_mm, study.projections, study.masks,
                          detector_spacings_mm=[_detector_spacing_mm(v) for v in study.views])
     plain = [dice2d(s, m) for s, m in zip(silhouettes, study.masks)]
-    return {
+    scores = {
         "dice3d": s3.dice3d,
         "iou3d": s3.iou3d,
         "chamfer_mm": s3.chamfer_mm,
@@ -114,6 +122,63 @@ def evaluation_scores(study: Study, result: ReconstructionResult, silhouettes: l
         "time_s": result.time_s,
         "n_points": int(len(result.vessel_points_mm)),
     }
+    if study.ground_truth_tree is not None:
+        scores.update(tree_evaluation_scores(study, result))
+    return scores
+
+
+def tree_evaluation_scores(study: Study, result: ReconstructionResult) -> dict[str, Any]:
+    """The tree scores of a reconstruction against the study's true tree
+    (:func:`angiohull.metrics.tree.tree_scores`), plus ``tree_s``. Where no tree could be built, the
+    scores are nan (the counts of the true tree stay), and ``tree_error`` says why.
+
+    Raises
+    ------
+    StudyError
+        If the study has no true tree, or the reconstruction was run without one (``tree=False``).
+    """
+    from .metrics.tree import tree_scores
+
+    where = study.root if study.root is not None else "study"
+    if study.ground_truth_tree is None:
+        raise StudyError(f"{where}: the study has no true vessel tree for the tree scores; add "
+                         f"'ground_truth_tree: gt_centerlines.npz' (.npz, .npy or .json) to its study.yaml")
+    if result.tree is None and result.tree_error is None:
+        raise StudyError(f"{where}: the reconstruction was run without its vessel tree (tree=False); the tree "
+                         f"scores need one")
+    if result.tree is not None:
+        scores: dict[str, Any] = tree_scores(result.tree, study.ground_truth_tree).as_dict()
+    else:  # no tree could be built: every score of the reconstruction undefined
+        template = tree_scores(study.ground_truth_tree, study.ground_truth_tree).as_dict()
+        scores = {key: (value if key in ("branches_true", "bifurcations_true") else
+                        (0 if isinstance(value, int) else math.nan)) for key, value in template.items()}
+        scores["tree_error"] = result.tree_error
+    scores["tree_s"] = result.timings_s.get("tree", math.nan)
+    return scores
+
+
+def tree_summary(tree: VesselTree | None, build: Any = None, error: str | None = None) -> dict[str, Any]:
+    """The ``tree`` section of ``report.json``: counts, length, radii, how it was built (or why not)."""
+    if tree is None:
+        return {"built": False, "error": error}
+    low, high = tree.radius_range_mm
+    out: dict[str, Any] = {
+        "built": True, "n_branches": tree.n_branches, "n_bifurcations": len(tree.bifurcations),
+        "length_mm": tree.length_mm, "radius_min_mm": low, "radius_max_mm": high,
+        "branches": [{"name": b.name, "parent": b.parent, "parent_point": b.parent_point, "n_points": b.n_points,
+                      "length_mm": b.length_mm, "radius_mean_mm": float(b.radius_mm.mean())} for b in tree.branches],
+    }
+    if build is not None:
+        sk = build.skeleton
+        out["build"] = {
+            "skeleton_voxels": sk.skeleton_voxels, "skeleton_parts": sk.parts, "parts_joined": sk.parts_joined,
+            "parts_bridged_through_carved_hull": sk.parts_bridged, "parts_dropped": sk.parts_dropped,
+            "voxels_dropped": sk.voxels_dropped, "spurs_removed": sk.spurs_removed, "cycles_cut": sk.cycles_cut,
+            "points_fitted": build.points_fitted, "view_sees_share": list(build.seen_share),
+            "points_no_view_sees": build.junction_points, "tips_moved_mm": list(build.tips_moved_mm),
+            "timings_s": dict(build.timings_s),
+        }
+    return out
 
 
 def json_safe(value: Any) -> Any:
@@ -163,7 +228,7 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
         "options": {"resolution": result.lattice.resolution, "threshold_px": options.threshold_px,
                     "engine": options.engine, "centerlines": options.centerlines, "device": options.device,
                     "min_views": options.min_views, "calibrate": options.calibrate,
-                    "calibrate_scale": options.calibrate_scale, "preset": options.preset},
+                    "calibrate_scale": options.calibrate_scale, "preset": options.preset, "tree": options.tree},
         "engine": result.engine,
         "cube_of_interest": {"half_edge_mm": result.lattice.half_edge_mm, "resolution": result.lattice.resolution,
                              "lattice_spacing_mm": result.lattice_spacing_mm, "n_lattice_points": result.lattice.n_points},
@@ -177,19 +242,72 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
             "dice2d_paper_dilation_px": f"side of the square dilation of the paper's Dice2D protocol: ceil(3 mm / detector spacing); views given as a bare matrix use the paper's {PAPER_DETECTOR_SPACING_MM} mm",
         },
     }
+    if options.tree:
+        report["tree"] = tree_summary(result.tree, result.tree_build, result.tree_error)
     if scores is not None:
         report["scores"] = scores
     return json_safe(report)
 
 
 def write_outputs(out_dir: Path, study: Study, result: ReconstructionResult, report: dict[str, Any]) -> dict[str, Path]:
-    """Write ``vessel.ply``, ``centerlines.ply`` (when computed) and ``report.json`` into ``out_dir``."""
+    """Write ``vessel.ply``, ``centerlines.ply`` (when computed), the tree's exports (when it was
+    built: ``centerlines.vtp``, ``tree.swc``, ``tree.json``, ``vessel.stl``, ``lumen.nii.gz``,
+    :func:`angiohull.exports.write_tree_exports`) and ``report.json`` (with the mesh, label volume
+    and export timings added to ``report["timings_s"]``) into ``out_dir``, all or nothing: every file
+    is written into a hidden folder inside ``out_dir`` first and moved into place when all are
+    written.
+
+    Raises
+    ------
+    OutputError
+        If ``out_dir`` or a file cannot be written (the message names the path and the reason);
+        then no file of this call is left (an ``out_dir`` created by this call is removed again).
+    """
+    import shutil
+    import tempfile
+
+    from .exports import write_tree_exports
+
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = {"vessel": out / "vessel.ply", "report": out / "report.json"}
-    write_points_ply(paths["vessel"], result.vessel_points_mm, comment="angiohull visual hull (kept lattice points)")
-    if result.centerline_points_mm is not None:
-        paths["centerlines"] = out / "centerlines.ply"
-        write_points_ply(paths["centerlines"], result.centerline_points_mm, comment="angiohull centerline points")
-    paths["report"].write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
-    return paths
+    created = not out.exists()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".angiohull-partial-", dir=out))
+    except OSError as exc:
+        raise OutputError(f"cannot write the outputs into {out}: {exc.strerror or exc}") from None
+    names = {"vessel": "vessel.ply", "report": "report.json"}
+    try:
+        write_points_ply(staging / names["vessel"], result.vessel_points_mm,
+                         comment="angiohull visual hull (kept lattice points)")
+        if result.centerline_points_mm is not None:
+            names["centerlines"] = "centerlines.ply"
+            write_points_ply(staging / names["centerlines"], result.centerline_points_mm,
+                             comment="angiohull centerline points")
+        if result.tree is not None:
+            from .tree.solid import surface_and_labels
+
+            timings = report.setdefault("timings_s", {})
+            start = time.perf_counter()
+            mesh, lumen = surface_and_labels(result.tree)
+            timings["mesh_and_lumen"] = time.perf_counter() - start
+            start = time.perf_counter()
+            exported = write_tree_exports(staging, result.tree, mesh=mesh, lumen=lumen)
+            timings["exports"] = time.perf_counter() - start
+            names.update({key: path.name for key, path in exported.items()})
+            tree_report = report.setdefault("tree", {})
+            tree_report["mesh"] = {"step_mm": mesh.step_mm, "n_vertices": int(len(mesh.vertices_mm)),
+                                   "n_faces": int(len(mesh.faces)), "volume_mm3": mesh.volume_mm3}
+            tree_report["lumen"] = {"spacing_mm": lumen.spacing_mm, "shape": list(lumen.labels.shape),
+                                    "volume_mm3": lumen.volume_mm3}
+        (staging / names["report"]).write_text(json.dumps(json_safe(report), indent=2) + "\n", encoding="utf-8")
+        for name in names.values():
+            (staging / name).replace(out / name)
+    except (OSError, AngiohullError) as exc:
+        shutil.rmtree(staging, ignore_errors=True)
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        if isinstance(exc, OSError):
+            raise OutputError(f"cannot write the outputs into {out}: {exc.strerror or exc}") from None
+        raise
+    shutil.rmtree(staging, ignore_errors=True)
+    return {key: out / name for key, name in names.items()}

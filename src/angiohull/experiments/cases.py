@@ -51,7 +51,8 @@ from ..synthetic.corruptions import CorruptionSpec, apply_all, draw_corruptions
 from ..synthetic.render import PAPER_SURFACE_SPACING_MM, render_mask
 from ..synthetic.tree import TORTUOSITY_LEVELS, TREE_KINDS, build_tree, draw_tree_params
 from ..synthetic.views import parse_views
-from .config import AnglesDesign, ExperimentConfig, NViewsDesign, TreesDesign, grid_values
+from ..tree import VesselTree
+from .config import TREE_METRICS, AnglesDesign, ExperimentConfig, NViewsDesign, TreesDesign, grid_values
 
 __all__ = [
     "derive_seed", "tree_seed", "sphere_directions", "direction_angles", "angle_matrix_sigma_min",
@@ -240,6 +241,7 @@ class _TreeAssets:
     phantom: Any  # TubePhantom
     ground_truth_mm: np.ndarray  # surface points, GT_SURFACE_SPACING_MM apart (as make_case)
     splat_mm: Optional[np.ndarray]  # the paper rasteriser's surface points, or None
+    true_tree: VesselTree  # the generator's tree (centerlines with radii)
 
 
 class _LRU:
@@ -288,7 +290,8 @@ def _tree_assets(kind: str, tortuosity: str, seed: int, rasteriser: str) -> _Tre
         params = draw_tree_params(kind, tortuosity, np.random.default_rng(tree_stream))
         tree = build_tree(params.model_copy(update={"seed": seed}))
         splat = tree.phantom.surface_points_mm(PAPER_SURFACE_SPACING_MM) if rasteriser == "paper" else None
-        return _TreeAssets(tree.phantom, tree.phantom.surface_points_mm(GT_SURFACE_SPACING_MM), splat)
+        return _TreeAssets(tree.phantom, tree.phantom.surface_points_mm(GT_SURFACE_SPACING_MM), splat,
+                           tree.vessel_tree())
 
     return _TREES.get((kind, tortuosity, seed, rasteriser), make)
 
@@ -317,6 +320,7 @@ class CaseInputs:
     masks: tuple[np.ndarray, ...]  # after the corruptions
     ground_truth_mm: np.ndarray
     corruptions: tuple[tuple[Any, ...], ...]  # per view, the records applied
+    true_tree: Optional[VesselTree] = None  # the generator's tree
 
 
 def case_inputs(params: dict[str, Any]) -> CaseInputs:
@@ -336,7 +340,7 @@ def case_inputs(params: dict[str, Any]) -> CaseInputs:
     records = draw_corruptions(specs, clean, np.random.default_rng(corruption_stream)) if specs else [[] for _ in clean]
     masks = [apply_all(mask, recs) if recs else mask for mask, recs in zip(clean, records)]
     return CaseInputs(tuple(names), tuple(carms), tuple(c.projection() for c in carms), tuple(clean), tuple(masks),
-                      assets.ground_truth_mm, tuple(tuple(r) for r in records))
+                      assets.ground_truth_mm, tuple(tuple(r) for r in records), assets.true_tree)
 
 
 def _fit_problem(ground_truth: np.ndarray, projections: Sequence[Projection]) -> tuple[Optional[str], float]:
@@ -403,6 +407,7 @@ def _score_case(params: dict[str, Any], row: dict[str, Any]) -> None:
         if not mask.any():
             raise AngiohullError(f"view {name}: the corruptions erased every vessel pixel")
     options = params["reconstruction"]
+    tree_metrics = [m for m in params["metrics"] if m in TREE_METRICS]
     projections = list(inputs.projections)
     if options.get("calibrate"):
         projections = calibrate_shifts(projections, list(inputs.masks), threshold_px=options["threshold_px"],
@@ -410,7 +415,7 @@ def _score_case(params: dict[str, Any], row: dict[str, Any]) -> None:
     result = reconstruct(projections, list(inputs.masks), resolution=options["resolution"],
                          threshold_px=options["threshold_px"], engine=options["engine"], centerlines=False,
                          view_names=inputs.names, allow_empty=True, preset=options.get("preset", "paper"),
-                         min_views=options.get("min_views"))
+                         min_views=options.get("min_views"), tree=bool(tree_metrics))
     points = result.vessel_points_mm
     metrics = params["metrics"]
     row["n_points"] = int(len(points))
@@ -436,3 +441,11 @@ def _score_case(params: dict[str, Any], row: dict[str, Any]) -> None:
                                                    cell_mm=result.lattice_spacing_mm)))
     if "time_s" in metrics:
         row["time_s"] = result.time_s
+    if tree_metrics and result.tree is not None:
+        from ..metrics.tree import tree_scores
+
+        scores = tree_scores(result.tree, inputs.true_tree).as_dict()
+        for name in tree_metrics:
+            row[name] = scores[name]
+    elif tree_metrics and result.tree_error and row["status"] == "ok":
+        row["reason"] = _one_line(f"no vessel tree: {result.tree_error}")

@@ -42,17 +42,24 @@ from ..synthetic.views import parse_views
 
 __all__ = [
     "ConfigError", "ExperimentConfig", "GeneratorSettings", "ReconstructionSettings", "TreesDesign", "NViewsDesign",
-    "AnglesDesign", "Sweep", "SweepValues", "METRICS", "CONFIG_FORMAT", "load_config", "shipped_config_names",
+    "AnglesDesign", "Sweep", "SweepValues", "METRICS", "TREE_METRICS", "CONFIG_FORMAT", "load_config", "shipped_config_names",
     "shipped_config_path", "config_from_dict", "config_to_dict",
 ]
 
 CONFIG_FORMAT = 1
 """Value of the ``angiohull_experiment`` key of every configuration file."""
 
-METRICS: tuple[str, ...] = ("dice3d", "iou3d", "chamfer_mm", "dice2d_paper", "dice2d", "time_s")
+TREE_METRICS: tuple[str, ...] = ("centerline_mean_mm", "centerline_p95_mm", "ot1mm", "cldice", "radius_mae_mm",
+                                  "radius_bias_mm", "branch_recall", "branch_precision", "bifurcation_error_mm")
+"""Tree scores a configuration may ask for (:func:`angiohull.metrics.tree.tree_scores`; shares in [0, 1]):
+the case then builds the reconstruction's vessel tree and scores it against the generator's."""
+
+METRICS: tuple[str, ...] = ("dice3d", "iou3d", "chamfer_mm", "dice2d_paper", "dice2d", "time_s", *TREE_METRICS)
 """Metric names a configuration may ask for (DESIGN.md, "Metrics"); ``time_s`` is the reconstruction alone."""
 
-Metric = Literal["dice3d", "iou3d", "chamfer_mm", "dice2d_paper", "dice2d", "time_s"]
+Metric = Literal["dice3d", "iou3d", "chamfer_mm", "dice2d_paper", "dice2d", "time_s", "centerline_mean_mm",
+                 "centerline_p95_mm", "ot1mm", "cldice", "radius_mae_mm", "radius_bias_mm", "branch_recall",
+                 "branch_precision", "bifurcation_error_mm"]
 Level = Literal["simple", "moderate", "tortuous"]
 
 _QUICK_MIN_TREES = 2  # trees per group: two, so a standard deviation exists

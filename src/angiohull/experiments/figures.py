@@ -25,6 +25,15 @@ METRIC_LABELS = {
     "dice2d_paper": "Dice2D, paper protocol (%)",
     "dice2d": "Dice2D, plain (%)",
     "time_s": "reconstruction time (s)",
+    "centerline_mean_mm": "centerline distance, mean (mm)",
+    "centerline_p95_mm": "centerline distance, 95th percentile (mm)",
+    "ot1mm": "Ot(1 mm), share of the true centerline",
+    "cldice": "clDice",
+    "radius_mae_mm": "radius error, mean absolute (mm)",
+    "radius_bias_mm": "radius error, bias (mm)",
+    "branch_recall": "branch recall",
+    "branch_precision": "branch precision",
+    "bifurcation_error_mm": "bifurcation position error (mm)",
 }
 
 _MEAN_COLOUR = "#0072B2"  # Okabe-Ito blue

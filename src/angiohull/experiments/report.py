@@ -25,7 +25,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import AngiohullError
-from .config import NViewsDesign, TreesDesign
+from .config import TREE_METRICS, NViewsDesign, TreesDesign
 from .figures import METRIC_LABELS, curve_figure, group_figure
 from .paper import PAPER_CITATION, PAPER_RESULTS
 from .runner import CONFIG_FILE, RunData, load_run
@@ -162,6 +162,8 @@ def _fmt(metric: str, value: Optional[float]) -> str:
         return "n/a"
     if metric in ("chamfer_mm", "time_s", "case_s"):
         return f"{value:.4f}"
+    if metric in TREE_METRICS:  # millimetres and shares in [0, 1]
+        return f"{value:.3f}"
     return f"{value:.2f}"
 
 

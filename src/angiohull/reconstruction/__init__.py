@@ -14,12 +14,14 @@ import numpy as np
 from .. import _validation as _v
 from ..errors import EmptyHullError, ReconstructionError
 from ..geometry import Projection, cube_half_edge_mm
+from ..tree import VesselTree
 from .centerlines import extract_centerlines, skeletonise
 from .cube import MAX_DENSE_RESOLUTION, Lattice
 from .engines import ENGINES, CarveOutcome
 from . import hierarchical  # noqa: F401  (registers the lookup and octree engines)
 from .gpu import CUDA_ENGINES, carve_cuda
 from .refine import REFINED, clean_mask, refine_hull
+from .vessel_tree import TREE_SETTINGS, TreeBuild, hull_tree
 
 __all__ = [
     "reconstruct",
@@ -35,6 +37,8 @@ __all__ = [
     "ENGINE_CHOICES",
     "PRESETS",
     "MAX_DENSE_RESOLUTION",
+    "hull_tree",
+    "TreeBuild",
 ]
 
 DEFAULT_RESOLUTION = 100
@@ -64,7 +68,10 @@ class ReconstructionResult:
     view_order: tuple[int, ...]  # indices of the views in the order the engine applied them
     min_views: int | None = None  # robust carving: views that must keep a point (None: all, the paper)
     preset: str = "paper"  # "paper" (as published) or "refined" (see reconstruction.refine)
-    timings_s: dict[str, float] = field(default_factory=dict)  # seconds per stage: cube, carve, centerlines, reconstruction
+    timings_s: dict[str, float] = field(default_factory=dict)  # seconds per stage: cube, carve, refine, centerlines, tree, reconstruction
+    tree: VesselTree | None = None  # the vessel tree (centerlines with radii); None when not requested or not built
+    tree_build: TreeBuild | None = None  # how the tree was built (skeleton parts, views' coverage, timings)
+    tree_error: str | None = None  # why no tree could be built, when one was requested
 
     @property
     def lattice_spacing_mm(self) -> float:
@@ -125,8 +132,8 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
                 resolution: int | None = None, threshold_px: float = DEFAULT_THRESHOLD_PX,
                 engine: str = "auto", centerlines: bool = True, view_names: Sequence[str] | None = None,
                 half_edge_mm: float | None = None, allow_empty: bool = False, device: str = "cpu",
-                min_views: int | None = None, preset: str = "paper") -> ReconstructionResult:
-    """Carve the visual hull of the masks and, optionally, its centerline points.
+                min_views: int | None = None, preset: str = "paper", tree: bool = True) -> ReconstructionResult:
+    """Carve the visual hull of the masks and, optionally, its centerline points and vessel tree.
 
     Parameters
     ----------
@@ -163,6 +170,10 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         ``"paper"`` (default): the method as published. ``"refined"`` (beyond the paper, see
         :mod:`.refine`): specks removed from the masks, a finer lattice, small disconnected parts
         dropped and the hull trimmed to the vessel radii the views show.
+    tree : bool, keyword-only
+        Also build the vessel tree (:func:`.vessel_tree.hull_tree`: the hull's skeleton, centres
+        and radii fitted to the views; ``result.tree``). When no tree can be built (a hull too
+        small for a skeleton), ``result.tree`` is None and ``result.tree_error`` says why.
 
     Returns
     -------
@@ -208,6 +219,7 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
                                   min_views=min_views)
     timings["carve"] = time.perf_counter() - start
     points = outcome.points_mm
+    carved = points
     if preset == "refined":
         start = time.perf_counter()
         points, _ = refine_hull(points, lattice, projections, checked_masks, REFINED)
@@ -225,6 +237,17 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         start = time.perf_counter()
         centerline_points = extract_centerlines(points, projections, checked_masks)
         timings["centerlines"] = time.perf_counter() - start
+    vessel_tree, build, tree_error = None, None, None
+    if tree and len(points):
+        start = time.perf_counter()
+        try:
+            vessel_tree, build = hull_tree(points, lattice, projections, checked_masks,
+                                           support_points_mm=carved if preset == "refined" else None)
+        except ReconstructionError as exc:
+            tree_error = str(exc)
+        timings["tree"] = time.perf_counter() - start
+    elif tree:
+        tree_error = "the hull is empty"
     timings["total"] = sum(v for k, v in timings.items() if k != "reconstruction")
     return ReconstructionResult(
         vessel_points_mm=points,
@@ -239,4 +262,7 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         min_views=min_views,
         preset=preset,
         timings_s=timings,
+        tree=vessel_tree,
+        tree_build=build,
+        tree_error=tree_error,
     )

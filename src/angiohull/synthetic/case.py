@@ -4,7 +4,8 @@
 folder (DESIGN.md format) plus the ground truth and the records that replay it:
 
 =======================  ==========================================================================
-``study.yaml``, masks/   the study, as any other (views as ``carm:``), ``ground_truth: gt.npy``
+``study.yaml``, masks/   the study, as any other (views as ``carm:``), ``ground_truth: gt.npy``,
+                         ``ground_truth_tree: gt_centerlines.npz``
 ``gt.npy``               points on the tube surface, mm (the paper's ground truth after voxelising)
 ``gt_lumen.npy``         grid points (0.5 mm) inside the lumen, mm
 ``gt_centerlines.npz``   per branch an (M, 4) array ``x, y, z, radius`` (mm) under its name, plus
@@ -212,7 +213,8 @@ def make_case(options: SynthOptions = SynthOptions(), *, tree_params: TreeParams
 def write_case(folder: str | Path, case: SyntheticCase) -> Path:
     """Write the study folder of a case (see the module docstring); returns the ``study.yaml`` path."""
     folder = Path(folder)
-    yaml_path = save_study(folder, case.views, ground_truth_mm=case.surface_points_mm)
+    yaml_path = save_study(folder, case.views, ground_truth_mm=case.surface_points_mm,
+                           ground_truth_tree_file="gt_centerlines.npz")
     np.save(folder / "gt_lumen.npy", case.tree.phantom.lumen_points_mm(GT_LUMEN_SPACING_MM), allow_pickle=False)
     centerlines = case.tree.centerlines()
     np.savez(folder / "gt_centerlines.npz", branch_names=np.array([b.name for b in case.tree.branches]),

@@ -52,6 +52,8 @@ from scipy.interpolate import CubicSpline
 
 from .. import _validation as _v
 from ..errors import AngiohullError
+from ..tree import Branch as TreeBranch
+from ..tree import VesselTree
 from .phantom import Tube, TubePhantom
 from .tortuosity import arc_length_mm, curvature_metric, distance_metric, sum_of_angles_metric
 
@@ -245,6 +247,12 @@ class CoronaryTree:
     def centerlines(self) -> dict[str, np.ndarray]:
         """Per branch name, an (M, 4) array of ``x, y, z, radius`` in mm."""
         return {b.name: np.column_stack([b.centerline_mm, b.radius_mm]) for b in self.branches}
+
+    def vessel_tree(self) -> VesselTree:
+        """The true tree as a :class:`~angiohull.tree.VesselTree` (the same points and radii as
+        ``gt_centerlines.npz``; each branch leaves its parent at its ``origin_vertex``)."""
+        return VesselTree(tuple(TreeBranch(b.centerline_mm, b.radius_mm, b.parent, b.origin_vertex, b.name)
+                                for b in self.branches))
 
 
 def min_bend_radius_mm(centerline_mm: np.ndarray) -> float:

@@ -1,0 +1,587 @@
+"""The vessel tree of a visual hull: skeleton, then centres and radii fitted to the views.
+
+:func:`hull_tree` turns the kept lattice points of any reconstruction (either preset, any number of
+views) into a :class:`~angiohull.tree.VesselTree`:
+
+1. **Skeleton.** The kept lattice cells form an occupancy volume (pooled to cells of at most
+   ``max_cell_mm`` on very fine lattices). On a fine lattice a thin vessel is carved with gaps of
+   a cell or two (a cell projects to more than the 1 px threshold; the refined preset keeps such
+   parts together by the same rule), so the volume is first dilated by ``floor(bridge_mm / cell)``
+   cells (one at K = 256, none at the paper's K = 100). Centerline paths through it
+   (:func:`angiohull.tree.teasar.teasar_skeleton`; 3D thinning can lose whole limbs) make the
+   skeleton, and :func:`angiohull.tree.skeleton.tree_from_skeleton` the graph: cycles cut, small
+   gaps joined (larger ones along the shortest path through ``support_points_mm``, the carving
+   before refinement, where the refined preset dropped a true piece), spurs no longer than two
+   local radii removed, the root at the widest tip, branches continued through junctions. Its
+   radii (the distance to the nearest empty cell of the undilated volume) only start the fit: the
+   hull is wider than the vessel, and the lattice coarse.
+2. **Branches** are resampled every ``point_step_mm`` and smoothed along their arc length
+   (Gaussian, ``smoothing_mm``), children re-attached to their parent's smoothed point.
+3. **Cross-sections in the views** (``iterations`` times). At each point, in each view, the mask
+   is sampled (bilinearly, every ``profile_step_px``) along the normal of the projected
+   centerline; the run of vessel pixels through the projection gives two sub-pixel edges (the
+   0.5 crossings, half-way between a vessel pixel centre and a background one, as the pixel-centre
+   rule of the masks puts them), hence a width ``w`` and the offset ``c`` of its middle from the
+   projection. A view *sees* the point's cross-section when
+   - the run exists (the projection lies on the mask or within 2 px of it, and the run ends
+     inside the profile),
+   - the vessel is not foreshortened there (the projected tangent is at least
+     ``min_foreshortening`` of its length at that depth), and
+   - nothing else of the tree overlaps it: no point of the tree that is apart in 3D (farther than
+     the two radii plus ``overlap_margin_mm``) projects within the two projected radii plus
+     ``overlap_margin_px``.
+   Each seeing view gives the radius ``w / 2 * depth / f`` (``f`` the focal length in pixels);
+   the point's radius is their median (their mean with two). Without a seeing view, the smallest
+   radius any view gives (an overlap only widens the run). The point moves by the least-squares
+   step that puts its projection on the middles of the seeing views' runs (along each view's
+   normal; the step along the 3D tangent is held at zero), at most one radius per iteration, then
+   the branches are smoothed again (``smoothing_mm / 2``).
+4. **Junctions.** Near a bifurcation a cross-section crosses both vessels. Points closer to a point
+   of another branch than the two radii plus ``overlap_margin_mm`` keep their position, and their
+   radius is interpolated along the branch from the points on either side.
+5. **Ends.** Thinning stops short of a vessel's end (by up to a radius) or overshoots it where the
+   hull ends in a point. Each tip of the tree (the root's start and every branch end with no child
+   there) moves along its tangent to the farthest place, within three radii, where the end cap
+   (the point plus one radius along the tangent) still projects onto the mask in every view; a tip
+   whose cap is outside a mask is cut back to where it is inside all of them, at most three radii.
+6. Radii are smoothed along the branch (Gaussian, ``radius_smoothing_mm``).
+
+Arrays and projections in, a tree out; nothing here reads files.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+from scipy import ndimage as ndi
+from scipy.spatial import cKDTree
+
+from ..errors import ReconstructionError, TreeError
+from ..geometry import Projection
+from ..tree import Branch, VesselTree
+from ..tree.skeleton import SkeletonInfo, SkeletonSettings, tree_from_skeleton
+from ..tree.teasar import teasar_skeleton
+from .cube import Lattice
+
+__all__ = ["TreeSettings", "TREE_SETTINGS", "TreeBuild", "hull_tree"]
+
+
+@dataclass(frozen=True)
+class TreeSettings:
+    """Parameters of :func:`hull_tree` (module notes); the same for every preset and case."""
+
+    max_cell_mm: float = 0.4  # finer lattices are pooled to cells of at most this (whole factors; K = 1024: 0.35 mm)
+    max_voxels: int = 1_000_000  # a hull filling more cells than this is not a vessel tree (no tree is built)
+    bridge_mm: float = 0.6  # the occupancy is dilated by floor(bridge_mm / cell) cells before the paths
+    point_step_mm: float = 0.5  # branch points every this much arc length
+    smoothing_mm: float = 1.0  # Gaussian sigma of the positions along a branch, mm
+    iterations: int = 3  # cross-section fits
+    profile_step_px: float = 0.5  # sampling step along a cross-section, px (edges interpolated between samples)
+    min_foreshortening: float = 0.4  # a view sees a cross-section when the vessel is at most ~66 deg out of its plane
+    overlap_margin_px: float = 1.5  # projected discs closer than this (beyond touching) overlap
+    overlap_margin_mm: float = 1.0  # points farther apart in 3D than the two radii plus this are distinct vessels
+    radius_smoothing_mm: float = 0.5  # Gaussian sigma of the radii along a branch, mm
+    end_reach_radii: float = 3.0  # how far a tip may move (either way), in radii
+    max_bridge_mm: float = 40.0  # longest path through the support hull that joins a part to the tree
+    skeleton: SkeletonSettings = field(default_factory=SkeletonSettings)
+
+
+TREE_SETTINGS = TreeSettings()
+"""The settings every reconstruction uses (measured in docs/vessel-tree.md)."""
+
+_MIN_RADIUS_MM = 0.05
+_SEEK_PX = 2.0  # a projection off the mask looks this far along the normal for the vessel
+
+
+@dataclass(frozen=True)
+class TreeBuild:
+    """What :func:`hull_tree` did, for reports."""
+
+    skeleton: SkeletonInfo
+    points_fitted: int  # tree points after resampling
+    seen_share: tuple[float, ...]  # per view: share of the points whose cross-section it sees
+    junction_points: int  # points whose radius was interpolated near a bifurcation
+    tips_moved_mm: tuple[float, ...]  # per tip: how far it moved (+ out, - back)
+    timings_s: dict[str, float]
+
+
+# -- branch arrays -----------------------------------------------------------------------------
+@dataclass
+class _Arrays:
+    """The tree as flat arrays while it is fitted: points, radii and where each branch sits."""
+
+    points: np.ndarray  # (N, 3)
+    radius: np.ndarray  # (N,)
+    starts: np.ndarray  # (B,) first index of each branch
+    counts: np.ndarray  # (B,)
+    parents: list[int | None]
+    parent_points: list[int | None]
+    names: list[str]
+
+    @classmethod
+    def of(cls, tree: VesselTree) -> "_Arrays":
+        counts = np.array([b.n_points for b in tree.branches])
+        return cls(np.concatenate([b.points_mm for b in tree.branches]),
+                   np.concatenate([b.radius_mm for b in tree.branches]),
+                   np.cumsum(counts) - counts, counts,
+                   [b.parent for b in tree.branches], [b.parent_point for b in tree.branches],
+                   [b.name for b in tree.branches])
+
+    def span(self, b: int) -> slice:
+        return slice(int(self.starts[b]), int(self.starts[b] + self.counts[b]))
+
+    def anchor(self, b: int) -> int | None:
+        """Flat index of the parent point of branch b."""
+        parent = self.parents[b]
+        return None if parent is None else int(self.starts[parent] + self.parent_points[b])
+
+    def tangents(self) -> np.ndarray:
+        out = np.empty_like(self.points)
+        for b in range(len(self.counts)):
+            p = self.points[self.span(b)]
+            step = np.linalg.norm(np.diff(p, axis=0), axis=1)
+            arc = np.concatenate([[0.0], np.cumsum(np.maximum(step, 1e-12))])
+            g = np.gradient(p, arc, axis=0)
+            out[self.span(b)] = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
+        return out
+
+    def smooth(self, sigma_mm: float, step_mm: float, fixed: np.ndarray | None = None) -> None:
+        """Gaussian smoothing of the positions along each branch (ends held), children re-attached."""
+        if sigma_mm <= 0:
+            return
+        for b in range(len(self.counts)):
+            s = self.span(b)
+            p = self.points[s]
+            if len(p) < 3:
+                continue
+            smooth = ndi.gaussian_filter1d(p, sigma_mm / step_mm, axis=0, mode="nearest")
+            smooth[0], smooth[-1] = p[0], p[-1]
+            if fixed is not None:
+                hold = fixed[s]
+                smooth[hold] = p[hold]
+            self.points[s] = smooth
+            self.reattach(b)
+
+    def reattach(self, parent: int) -> None:
+        for child, p in enumerate(self.parents):
+            if p == parent:
+                self.points[self.starts[child]] = self.points[self.anchor(child)]
+
+    def tree(self) -> VesselTree:
+        branches = []
+        for b in range(len(self.counts)):
+            s = self.span(b)
+            points, radius = self.points[s], self.radius[s]
+            keep = np.concatenate([[True], np.linalg.norm(np.diff(points, axis=0), axis=1) > 1e-9])
+            branches.append(Branch(points[keep], radius[keep], self.parents[b], self.parent_points[b], self.names[b]))
+        return VesselTree(tuple(branches))
+
+
+# -- cross-sections ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Sections:
+    """Per view and point: the run of the mask across the projected centerline."""
+
+    found: np.ndarray  # (V, N) bool: a run through (or within 2 px of) the projection
+    width_px: np.ndarray  # (V, N)
+    offset_px: np.ndarray  # (V, N) middle of the run minus the projection, along the normal
+    normal_px: np.ndarray  # (V, N, 2) unit normal in the image
+    gradient: np.ndarray  # (V, N, 3) d(normal . uv)/dX, px per mm
+    px_per_mm: np.ndarray  # (V, N) focal length / depth
+    foreshortening: np.ndarray  # (V, N) |projected tangent| / px_per_mm
+    uv: np.ndarray  # (V, N, 2)
+
+
+def _sections(points: np.ndarray, tangents: np.ndarray, radius: np.ndarray, projections: Sequence[Projection],
+              images: Sequence[np.ndarray], step_px: float) -> _Sections:
+    views = len(projections)
+    n = len(points)
+    out = {k: [] for k in ("found", "width_px", "offset_px", "normal_px", "gradient", "px_per_mm", "foreshortening", "uv")}
+    for projection, image in zip(projections, images):
+        uv = projection.project(points)
+        jac = projection.jacobian(points)
+        f = max(projection.focal_lengths_px)
+        px_per_mm = f / projection.depth_mm(points)
+        d2 = np.einsum("nij,nj->ni", jac, tangents)
+        length = np.linalg.norm(d2, axis=1)
+        direction = d2 / np.maximum(length, 1e-12)[:, None]
+        normal = np.column_stack([-direction[:, 1], direction[:, 0]])
+        reach = np.clip(2.5 * radius * px_per_mm + 4.0, 6.0, 40.0)
+        half = int(np.ceil(reach.max() / step_px))
+        s = step_px * np.arange(-half, half + 1)
+        u = uv[:, 0, None] + s[None, :] * normal[:, 0, None]
+        v = uv[:, 1, None] + s[None, :] * normal[:, 1, None]
+        profile = ndi.map_coordinates(image, [v.ravel(), u.ravel()], order=1, mode="constant", cval=0.0).reshape(u.shape)
+        inside = profile >= 0.5
+        centre = half
+        index = np.arange(len(s))
+        seek = int(round(_SEEK_PX / step_px))
+        gap = np.where(inside, np.abs(index - centre)[None, :], 10 ** 6)
+        seed = np.argmin(gap, axis=1)
+        found = gap[np.arange(n), seed] <= seek
+        outside = ~inside
+        left = np.where(outside & (index[None, :] < seed[:, None]), index[None, :], -1).max(axis=1)
+        right = np.where(outside & (index[None, :] > seed[:, None]), index[None, :], len(s)).min(axis=1)
+        found &= (left >= 0) & (right < len(s))
+        found &= (s[np.clip(left, 0, None)] >= -reach) & (s[np.clip(right, None, len(s) - 1)] <= reach)
+        left_c, right_c = np.clip(left, 0, len(s) - 2), np.clip(right, 1, len(s) - 1)
+        rows = np.arange(n)
+        p_out, p_in = profile[rows, left_c], profile[rows, left_c + 1]
+        left_edge = s[left_c] + (0.5 - p_out) / np.maximum(p_in - p_out, 1e-9) * step_px
+        p_in, p_out = profile[rows, right_c - 1], profile[rows, right_c]
+        right_edge = s[right_c - 1] + (p_in - 0.5) / np.maximum(p_in - p_out, 1e-9) * step_px
+        out["found"].append(found)
+        out["width_px"].append(np.where(found, right_edge - left_edge, np.nan))
+        out["offset_px"].append(np.where(found, 0.5 * (left_edge + right_edge), np.nan))
+        out["normal_px"].append(normal)
+        out["gradient"].append(np.einsum("ni,nij->nj", normal, jac))
+        out["px_per_mm"].append(px_per_mm)
+        out["foreshortening"].append(length / px_per_mm)
+        out["uv"].append(uv)
+    return _Sections(**{k: np.stack(v) for k, v in out.items()})
+
+
+def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings) -> np.ndarray:
+    """(V, N) bool: in the view, the point's projected disc overlaps the disc of a point of another
+    branch, or of the same branch farther along it than the two radii (a loop crossing itself)."""
+    views, n = sections.found.shape
+    owner = np.repeat(np.arange(len(arrays.counts)), arrays.counts)
+    arc = np.empty(n)
+    for b in range(len(arrays.counts)):
+        p = arrays.points[arrays.span(b)]
+        arc[arrays.span(b)] = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    radius = arrays.radius
+    out = np.zeros((views, n), dtype=bool)
+    for k in range(views):
+        rho = radius * sections.px_per_mm[k]
+        pairs = cKDTree(sections.uv[k]).query_pairs(2.0 * float(rho.max()) + settings.overlap_margin_px,
+                                                    output_type="ndarray")
+        if len(pairs) == 0:
+            continue
+        i, j = pairs[:, 0], pairs[:, 1]
+        near_2d = (np.linalg.norm(sections.uv[k, i] - sections.uv[k, j], axis=1)
+                   < rho[i] + rho[j] + settings.overlap_margin_px)
+        other = (owner[i] != owner[j]) | (np.abs(arc[i] - arc[j]) > radius[i] + radius[j] + settings.overlap_margin_mm)
+        hit = near_2d & other
+        out[k, i[hit]] = True
+        out[k, j[hit]] = True
+    return out
+
+
+def _combine_radius(sections: _Sections, seen: np.ndarray, previous: np.ndarray) -> np.ndarray:
+    radius_views = 0.5 * sections.width_px / sections.px_per_mm  # (V, N), nan where not found
+    seen_radius = np.where(seen, radius_views, np.nan)
+    count = seen.sum(axis=0)
+    with np.errstate(all="ignore"):
+        median = np.nanmedian(np.where(count[None, :] > 0, seen_radius, 0.0), axis=0)
+        smallest = np.nanmin(np.where(sections.found, radius_views, np.inf), axis=0)
+    out = np.where(count > 0, median, np.where(np.isfinite(smallest), smallest, previous))
+    return np.maximum(out, _MIN_RADIUS_MM)
+
+
+def _centre_step(sections: _Sections, seen: np.ndarray, tangents: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """Least-squares move of every point onto the middles of its seen runs (tangent held)."""
+    g = sections.gradient  # (V, N, 3)
+    weight = seen.astype(np.float64)
+    c = np.where(seen, sections.offset_px, 0.0)
+    normal = np.einsum("vn,vni,vnj->nij", weight, g, g)
+    rhs = np.einsum("vn,vni,vn->ni", weight, g, c)
+    scale = np.einsum("vn,vni,vni->n", np.ones_like(weight), g, g) / max(1, g.shape[0])
+    normal += (scale[:, None, None] * tangents[:, :, None] * tangents[:, None, :]
+               + 1e-3 * scale[:, None, None] * np.eye(3)[None])
+    step = np.linalg.solve(normal, rhs[..., None])[..., 0]
+    step[seen.sum(axis=0) == 0] = 0.0
+    length = np.linalg.norm(step, axis=1)
+    too_far = length > radius
+    step[too_far] *= (radius[too_far] / length[too_far])[:, None]
+    return step
+
+
+def _interpolate_held(arrays: _Arrays, held: np.ndarray) -> None:
+    """Radii of held points (no view sees them) interpolated along their branch from the others."""
+    for b in range(len(arrays.counts)):
+        s = arrays.span(b)
+        hold = held[s]
+        if not hold.any() or hold.all():
+            continue
+        p = arrays.points[s]
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+        r = arrays.radius[s]
+        r[hold] = np.interp(arc[hold], arc[~hold], r[~hold])
+        arrays.radius[s] = r
+
+
+def _smooth_radii(arrays: _Arrays, sigma_mm: float, step_mm: float) -> None:
+    if sigma_mm <= 0:
+        return
+    for b in range(len(arrays.counts)):
+        s = arrays.span(b)
+        if arrays.counts[b] >= 3:
+            arrays.radius[s] = ndi.gaussian_filter1d(arrays.radius[s], sigma_mm / step_mm, mode="nearest")
+
+
+# -- ends -----------------------------------------------------------------------------------------
+def _inside_all(points: np.ndarray, projections: Sequence[Projection], images: Sequence[np.ndarray]) -> np.ndarray:
+    inside = np.ones(len(points), dtype=bool)
+    for projection, image in zip(projections, images):
+        uv = projection.project(points)
+        value = ndi.map_coordinates(image, [uv[:, 1], uv[:, 0]], order=1, mode="constant", cval=0.0)
+        inside &= value >= 0.5
+    return inside
+
+
+def _tip_move(end: np.ndarray, outward: np.ndarray, radius: float, projections, images, reach_mm: float,
+              step_mm: float) -> float:
+    """How far (mm, + outward) the tip at ``end`` moves so that its cap is the last one inside every mask."""
+    offsets = np.arange(-reach_mm, reach_mm + 1e-9, step_mm)
+    caps = end[None, :] + (offsets[:, None] + radius) * outward[None, :]
+    inside = _inside_all(caps, projections, images)
+    zero = int(np.argmin(np.abs(offsets)))
+    if inside[zero]:
+        # outward while every cap on the way is inside
+        run = zero
+        while run + 1 < len(offsets) and inside[run + 1]:
+            run += 1
+        return float(offsets[run])
+    # cut back to the nearest inside cap
+    back = np.flatnonzero(inside[:zero])
+    return float(offsets[back[-1]]) if len(back) else 0.0
+
+
+def _move_ends(arrays: _Arrays, projections, images, settings: TreeSettings) -> tuple[VesselTree, list[float]]:
+    tree = arrays.tree()
+    has_child_at = {(b.parent, b.parent_point) for b in tree.branches[1:]}
+    branches = list(tree.branches)
+    moved = []
+    step = settings.point_step_mm
+    for index, b in enumerate(branches):
+        points, radius = b.points_mm, b.radius_mm
+        ends = [("end", points[-1], points[-1] - points[max(0, len(points) - 1 - 4)], float(np.median(radius[-5:])))]
+        if index == 0:
+            ends.append(("start", points[0], points[0] - points[min(len(points) - 1, 4)], float(np.median(radius[:5]))))
+        shift = 0
+        for which, end, direction, r in ends:
+            if which == "end" and (index, len(points) - 1) in has_child_at:
+                continue
+            norm = np.linalg.norm(direction)
+            if norm == 0:
+                continue
+            outward = direction / norm
+            move = _tip_move(end, outward, r, projections, images, settings.end_reach_radii * r, 0.1)
+            moved.append(move)
+            if which == "end":
+                if move > 0:
+                    extra = end + np.outer(np.arange(1, int(np.ceil(move / step)) + 1) * min(step, move), outward)
+                    extra[-1] = end + move * outward
+                    points = np.vstack([points, extra])
+                    radius = np.concatenate([radius, np.full(len(extra), radius[-1])])
+                elif move < 0:
+                    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+                    keep = arc <= arc[-1] + move
+                    children_points = [c.parent_point for c in branches if c.parent == index]
+                    last_needed = max(children_points) if children_points else 0
+                    keep[:last_needed + 1] = True
+                    if keep.sum() >= 2:
+                        points, radius = points[keep], radius[keep]
+            else:  # the root's start: prepend (never cut: its children's indices would move)
+                if move > 0:
+                    count = int(np.ceil(move / step))
+                    extra = end + np.outer(np.arange(count, 0, -1) * (move / count), outward)
+                    points = np.vstack([extra, points])
+                    radius = np.concatenate([np.full(count, radius[0]), radius])
+                    shift = count
+        branches[index] = Branch(points, radius, b.parent, b.parent_point, b.name)
+        if shift:
+            for j, c in enumerate(branches):
+                if c.parent == index:
+                    branches[j] = Branch(c.points_mm, c.radius_mm, c.parent, c.parent_point + shift, c.name)
+    return VesselTree(tuple(branches)), moved
+
+
+# -- the whole build -------------------------------------------------------------------------------
+def _occupancy(points_mm: np.ndarray, lattice: Lattice, cell_mm: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """The kept lattice cells as a bool volume (cropped, 2 empty cells around), pooled by the largest
+    whole factor f that keeps cells at most ``cell_mm`` (a cell is kept when any of its f**3 lattice
+    cells is): ``(volume, centre of voxel 0 in mm, voxel edge in mm)``."""
+    h = lattice.spacing_mm
+    factor = max(1, int(np.floor(cell_mm / h)))
+    ijk = np.round((points_mm + lattice.half_edge_mm) / h).astype(np.int64) // factor
+    low = ijk.min(axis=0) - 2
+    local = ijk - low
+    volume = np.zeros(tuple(local.max(axis=0) + 3), dtype=bool)
+    volume[tuple(local.T)] = True
+    spacing = factor * h
+    return volume, low * spacing + 0.5 * (factor - 1) * h - lattice.half_edge_mm, spacing
+
+
+class _SupportBridge:
+    """Shortest paths through a support hull, for :func:`~angiohull.tree.skeleton.tree_from_skeleton`."""
+
+    def __init__(self, support_mm: np.ndarray, lattice: Lattice, limit_mm: float):
+        self._support, self._lattice, self._limit = support_mm, lattice, limit_mm
+        self._graph = None
+
+    def _build(self) -> None:
+        """The support's voxel graph (26-neighbours, edge = distance), built on first use."""
+        import scipy.sparse as sparse
+
+        support_mm, lattice = self._support, self._lattice
+        h = lattice.spacing_mm
+        self._half, self._h = lattice.half_edge_mm, h
+        ijk = np.round((support_mm + self._half) / h).astype(np.int64)
+        self._low = ijk.min(axis=0) - 1
+        local = ijk - self._low
+        self._shape = tuple(local.max(axis=0) + 2)
+        self._index = np.full(self._shape, -1, dtype=np.int64)
+        self._index[tuple(local.T)] = np.arange(len(local))
+        self._points = (local + self._low) * h - self._half
+        offsets = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
+                            if (i, j, k) > (0, 0, 0)])
+        heads, tails, weights = [], [], []
+        for offset in offsets:
+            other = local + offset
+            ok = np.all((other >= 0) & (other < np.array(self._shape)), axis=1)
+            j = np.full(len(local), -1, dtype=np.int64)
+            j[ok] = self._index[tuple(other[ok].T)]
+            found = j >= 0
+            heads.append(np.flatnonzero(found))
+            tails.append(j[found])
+            weights.append(np.full(int(found.sum()), h * float(np.linalg.norm(offset))))
+        heads, tails, weights = np.concatenate(heads), np.concatenate(tails), np.concatenate(weights)
+        self._graph = sparse.coo_matrix((weights, (heads, tails)), shape=(len(local), len(local))).tocsr()
+
+    def _lookup(self, points_mm: np.ndarray) -> np.ndarray:
+        local = np.round((points_mm + self._half) / self._h).astype(np.int64) - self._low
+        ok = np.all((local >= 0) & (local < np.array(self._shape)), axis=1)
+        found = np.full(len(points_mm), -1, dtype=np.int64)
+        found[ok] = self._index[tuple(local[ok].T)]
+        return found
+
+    def __call__(self, part_mm: np.ndarray, tree_mm: np.ndarray) -> np.ndarray | None:
+        from scipy.sparse.csgraph import dijkstra
+
+        if self._graph is None:
+            self._build()
+        sources = np.unique(self._lookup(part_mm))
+        sources = sources[sources >= 0]
+        targets = np.unique(self._lookup(tree_mm))
+        targets = targets[targets >= 0]
+        if len(sources) == 0 or len(targets) == 0:
+            return None
+        distance, predecessors, origin = dijkstra(self._graph, directed=False, indices=sources, min_only=True,
+                                                  limit=self._limit, return_predecessors=True)
+        best = targets[np.argmin(distance[targets])]
+        if not np.isfinite(distance[best]):
+            return None
+        path = [int(best)]
+        while predecessors[path[-1]] >= 0:
+            path.append(int(predecessors[path[-1]]))
+        return self._points[path[::-1]]
+
+
+def _dilated(volume: np.ndarray, cells: int) -> np.ndarray:
+    """Dilation by ``cells`` in the 26-neighbourhood (a cube of side 2 cells + 1), as three 1D passes."""
+    out = volume.view(np.uint8) if volume.dtype == bool else volume.astype(np.uint8)
+    for axis in range(3):
+        out = ndi.maximum_filter1d(out, 2 * cells + 1, axis=axis, mode="constant", cval=0)
+    return out.astype(bool)
+
+
+def _skeleton_radius(carved: np.ndarray, skeleton: np.ndarray, spacing_mm: float,
+                     grown: np.ndarray | None = None) -> np.ndarray:
+    """(N,) distance (mm) from each skeleton voxel (``np.argwhere`` order) to the nearest voxel outside
+    the carved volume (a full 3D distance transform costs ten times more for the few hundred voxels
+    that need it). ``grown``: the carved volume dilated by one cell, when already at hand."""
+    shell = (grown if grown is not None else _dilated(carved, 1)) & ~carved
+    voxels = np.argwhere(skeleton)
+    if len(voxels) == 0:
+        return np.zeros(0)
+    distance, _ = cKDTree(np.argwhere(shell)).query(voxels)
+    return distance * spacing_mm
+
+
+def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray],
+              *, support_points_mm: np.ndarray | None = None,
+              settings: TreeSettings = TREE_SETTINGS) -> tuple[VesselTree, TreeBuild]:
+    """The vessel tree of carved lattice points (module notes).
+
+    Parameters
+    ----------
+    points_mm : (N, 3) array
+        Kept lattice points of ``lattice`` (any preset).
+    lattice : Lattice
+    projections, masks : sequences
+        The views the points were carved with (masks as carved).
+    support_points_mm : (S, 3) array, optional, keyword-only
+        Lattice points of a wider hull that holds ``points_mm`` (the carving before the refined
+        preset's steps): parts of the tree the narrower hull left apart are joined along the
+        shortest path through it (at most ``max_bridge_mm``).
+    settings : TreeSettings
+
+    Returns
+    -------
+    tree : VesselTree
+    build : TreeBuild
+
+    Raises
+    ------
+    ReconstructionError
+        If the points are too few for a skeleton with a branch.
+    """
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+    if len(points_mm) < 2:
+        raise ReconstructionError(f"the hull has {len(points_mm)} point(s); a vessel tree needs a skeleton of two or more")
+    volume, origin, spacing = _occupancy(np.asarray(points_mm, dtype=np.float64), lattice, settings.max_cell_mm)
+    occupied = int(np.count_nonzero(volume))
+    if occupied > settings.max_voxels:
+        raise ReconstructionError(f"the hull fills {occupied:,} cells of {spacing:.2f} mm, more than a vessel tree's "
+                                  f"{settings.max_voxels:,}; are the masks vessel masks?")
+    bridge = int(np.floor(settings.bridge_mm / spacing))
+    grown = _dilated(volume, 1)
+    skeleton, _ = teasar_skeleton(grown if bridge == 1 else _dilated(volume, bridge) if bridge else volume)
+    radius_volume = _skeleton_radius(volume, skeleton, spacing, grown)
+    images = [np.asarray(m, dtype=np.float32) for m in masks]
+    bridge = None
+    if support_points_mm is not None and len(support_points_mm):
+        bridge = _SupportBridge(np.asarray(support_points_mm, dtype=np.float64), lattice, settings.max_bridge_mm)
+
+    try:
+        raw, skeleton_info = tree_from_skeleton(skeleton, radius_volume, origin_mm=origin,
+                                                spacing_mm=spacing, settings=settings.skeleton,
+                                                bridge=bridge)
+    except TreeError as exc:
+        raise ReconstructionError(f"no vessel tree in the hull: {exc}") from None
+    timings["skeleton"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    step = settings.point_step_mm
+    arrays = _Arrays.of(raw.resampled(step))
+    arrays.smooth(settings.smoothing_mm, step)
+    held = np.zeros(len(arrays.points), dtype=bool)
+    seen = np.zeros((len(projections), len(arrays.points)), dtype=bool)
+    for _ in range(settings.iterations):
+        tangents = arrays.tangents()
+        sections = _sections(arrays.points, tangents, arrays.radius, projections, images, settings.profile_step_px)
+        overlap = _overlaps(sections, arrays, settings)
+        seen = sections.found & ~overlap & (sections.foreshortening >= settings.min_foreshortening)
+        held = seen.sum(axis=0) == 0
+        arrays.radius = _combine_radius(sections, seen, arrays.radius)
+        _interpolate_held(arrays, held)
+        arrays.points = arrays.points + _centre_step(sections, seen, tangents, arrays.radius)
+        for b in range(len(arrays.counts)):
+            arrays.reattach(b)
+        arrays.smooth(0.5 * settings.smoothing_mm, step)
+    _smooth_radii(arrays, settings.radius_smoothing_mm, step)
+    timings["fit"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    tree, moved = _move_ends(arrays, projections, images, settings)
+    timings["ends"] = time.perf_counter() - start
+    build = TreeBuild(skeleton=skeleton_info, points_fitted=len(arrays.points),
+                      seen_share=tuple(float(x) for x in seen.mean(axis=1)), junction_points=int(held.sum()),
+                      tips_moved_mm=tuple(moved), timings_s=timings)
+    return tree, build

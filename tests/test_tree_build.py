@@ -1,0 +1,163 @@
+"""The vessel tree of a reconstruction, on tubes whose axis and radii are known exactly.
+
+Each case is rendered with the exact silhouette (pixel-centre rule) into three clinical views of
+512 x 512 px at 0.35 mm, reconstructed with the refined preset, and its tree compared with the true
+axis: positions, radii (away from the tube ends and the bifurcation, where a cross-section is not a
+tube's), the bifurcation point, and the mesh of the tree.
+"""
+
+import numpy as np
+import pytest
+
+from angiohull.errors import ReconstructionError, TreeError
+from angiohull.geometry import CArmGeometry, parse_clinical_angles
+from angiohull.metrics.tree import distance_to_centerline
+from angiohull.reconstruction import reconstruct
+from angiohull.reconstruction.vessel_tree import hull_tree
+from angiohull.synthetic import Tube, TubePhantom
+from angiohull.tree import Branch, VesselTree
+from angiohull.tree.skeleton import tree_from_skeleton
+from angiohull.tree.teasar import teasar_skeleton
+
+CLINICAL = ("RAO 30 CRA 30", "LAO 60 CRA 30", "RAO 30 CAU 30")
+
+
+def _views():
+    return [CArmGeometry(*parse_clinical_angles(v), 1200.0, 800.0, (0.35, 0.35), (512, 512)).projection()
+            for v in CLINICAL]
+
+
+def _line(start, end, step=0.5):
+    start, end = np.asarray(start, float), np.asarray(end, float)
+    return np.linspace(start, end, int(np.ceil(np.linalg.norm(end - start) / step)) + 1)
+
+
+def _straight():
+    return VesselTree((Branch(_line((-25, -5, -10), (25, 5, 10)), 1.5, name="tube"),))
+
+
+def _curved():
+    """A quarter circle of radius 30 mm in a tilted plane, its radius tapering from 1.6 to 1.0 mm."""
+    t = np.linspace(0, np.pi / 2, 95)
+    u = np.array([1.0, 0.0, 0.3]) / np.linalg.norm([1.0, 0.0, 0.3])
+    v = np.array([0.0, 1.0, -0.2])
+    v = v - u * (u @ v)
+    v /= np.linalg.norm(v)
+    points = (30 * np.cos(t))[:, None] * u + (30 * np.sin(t))[:, None] * v - 15 * (u + v)
+    return VesselTree((Branch(points, np.linspace(1.6, 1.0, len(t)), name="arc"),))
+
+
+_JUNCTION = np.zeros(3)
+
+
+def _y():
+    """A trunk of radius 2.0 mm into the junction at the origin, continuing as a daughter of 1.4 mm;
+    a second daughter of 1.1 mm leaves at the junction."""
+    trunk, first = _line((-30, 0, 0), _JUNCTION), _line(_JUNCTION, (25, 15, 5))
+    second = _line(_JUNCTION, (20, -20, -5))
+    main = Branch(np.vstack([trunk, first[1:]]),
+                  np.concatenate([np.full(len(trunk), 2.0), np.full(len(first) - 1, 1.4)]), name="trunk")
+    return VesselTree((main, Branch(second, 1.1, parent=0, parent_point=len(trunk) - 1, name="second")))
+
+
+def _reconstructed(truth, preset="refined"):
+    phantom = TubePhantom(tuple(Tube(b.points_mm, b.radius_mm) for b in truth.branches), "truth")
+    projections = _views()
+    masks = [phantom.silhouette(p) for p in projections]
+    return reconstruct(projections, masks, preset=preset, centerlines=False)
+
+
+def _interior(points, truth, radius_true):
+    """Tree points farther than two radii + 1 mm from every true end and 5 mm from the junction."""
+    ends = np.vstack([b.points_mm[[0, -1]] for b in truth.branches])
+    far = np.linalg.norm(points[:, None] - ends[None], axis=2).min(axis=1) > 2 * radius_true + 1.0
+    if truth.n_branches > 1:
+        far &= np.linalg.norm(points - _JUNCTION, axis=1) > 5.0
+    return far
+
+
+@pytest.mark.parametrize("make, branches", [(_straight, 1), (_curved, 1), (_y, 2)], ids=["straight", "curved", "y"])
+def test_tubes_of_known_axis_and_radii_come_back_from_three_exact_views(make, branches):
+    truth = make()
+    result = _reconstructed(truth)
+    tree = result.tree
+    assert tree is not None and result.tree_error is None
+    assert sum(b.length_mm >= 5.0 for b in tree.branches) == branches
+    points, radius, _ = tree.points()
+    distance, _, radius_true, _ = distance_to_centerline(points, truth)
+    inner = _interior(points, truth, radius_true)
+    assert inner.sum() > 40
+    # positions: within a fifth of a millimetre of the true axis
+    assert distance[inner].mean() < 0.2 and distance[inner].max() < 0.5
+    # radii within 0.1 mm (or 10 %) of the truth, at every interior point
+    error = np.abs(radius[inner] - radius_true[inner])
+    assert np.all(error <= np.maximum(0.1, 0.1 * radius_true[inner]))
+    # the tree reaches the true ends (within a radius)
+    for b in truth.branches:
+        gap = np.linalg.norm(points - b.points_mm[-1], axis=1).min()
+        assert gap < b.radius_mm[-1] + 0.5
+    if branches == 2:
+        (bifurcation,) = [f for f in tree.bifurcations if min(tree.branches[c].length_mm for c in f.children) >= 5.0]
+        assert np.linalg.norm(np.array(bifurcation.position_mm) - _JUNCTION) < 1.0
+
+
+def test_the_paper_preset_gives_a_tree_too():
+    truth = _straight()
+    result = _reconstructed(truth, preset="paper")
+    points, radius, _ = result.tree.points()
+    distance, _, radius_true, _ = distance_to_centerline(points, truth)
+    inner = _interior(points, truth, radius_true)
+    assert distance[inner].mean() < 0.3
+    assert np.median(np.abs(radius[inner] - radius_true[inner])) < 0.1
+    assert result.timings_s["tree"] > 0
+
+
+def test_no_tree_when_asked_for_none_or_the_hull_is_too_small():
+    truth = _straight()
+    phantom = TubePhantom(tuple(Tube(b.points_mm, b.radius_mm) for b in truth.branches), "truth")
+    projections = _views()
+    masks = [phantom.silhouette(p) for p in projections]
+    result = reconstruct(projections, masks, tree=False, centerlines=False)
+    assert result.tree is None and result.tree_error is None and "tree" not in result.timings_s
+    with pytest.raises(ReconstructionError, match="a vessel tree needs"):
+        hull_tree(result.vessel_points_mm[:1], result.lattice, projections, masks)
+
+
+def _voxel_line(volume, start, end):
+    for t in np.linspace(0, 1, 4 * int(np.abs(np.subtract(end, start)).max()) + 1):
+        volume[tuple(np.round(np.asarray(start) + t * (np.asarray(end) - np.asarray(start))).astype(int))] = True
+
+
+def test_skeleton_graph_prunes_spurs_joins_gaps_and_roots_at_the_widest_tip():
+    skeleton = np.zeros((60, 40, 10), dtype=bool)
+    _voxel_line(skeleton, (5, 20, 5), (50, 20, 5))  # main line
+    _voxel_line(skeleton, (30, 21, 5), (30, 35, 5))  # a side branch, 15 voxels
+    _voxel_line(skeleton, (15, 21, 5), (15, 22, 5))  # a 2-voxel spur
+    _voxel_line(skeleton, (53, 20, 5), (57, 20, 5))  # a part beyond a 2-voxel gap
+    radius = np.where(skeleton, 1.0, 0.0)
+    radius[5:10, 20, 5] = 3.0  # the wide end: the ostium
+    tree, info = tree_from_skeleton(skeleton, radius, origin_mm=np.zeros(3), spacing_mm=1.0)
+    assert info.spurs_removed == 1 and info.parts_joined == 1 and info.parts_dropped == 0
+    assert tree.n_branches == 2
+    np.testing.assert_allclose(tree.root.points_mm[0], [5, 20, 5])
+    np.testing.assert_allclose(tree.root.points_mm[-1], [57, 20, 5])
+    side = tree.branches[1]
+    np.testing.assert_allclose(tree.root.points_mm[side.parent_point], [30, 20, 5])
+    np.testing.assert_allclose(side.points_mm[-1], [30, 35, 5])
+    with pytest.raises(TreeError, match="at least two"):
+        tree_from_skeleton(np.zeros((3, 3, 3), bool), np.zeros((3, 3, 3)), origin_mm=np.zeros(3), spacing_mm=1.0)
+
+
+def test_teasar_paths_reach_every_end_of_a_thick_y():
+    # a voxelised Y of radius 3 voxels: thinning must not lose a limb, paths reach each end
+    grid = np.indices((70, 50, 14)).reshape(3, -1).T.astype(float)
+    truth = VesselTree((Branch(_line((5, 25, 7), (60, 25, 7)), 3.0), Branch(_line((35, 25, 7), (35, 45, 7)), 3.0, 0, 60)))
+    from angiohull.tree.solid import contains
+
+    volume = contains(truth, grid).reshape(70, 50, 14)
+    skeleton, dbf = teasar_skeleton(volume)
+    voxels = np.argwhere(skeleton)
+    for end in ((5, 25, 7), (60, 25, 7), (35, 45, 7)):
+        assert np.linalg.norm(voxels - end, axis=1).min() <= 3.0
+    distance, *_ = distance_to_centerline(voxels.astype(float), truth)
+    assert np.median(distance) <= 1.0 and len(dbf) == len(voxels) and dbf.max() >= 2.5
