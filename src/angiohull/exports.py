@@ -309,9 +309,11 @@ def _nifti_image(lumen: LumenVolume) -> Any:
     import nibabel
 
     labels = _lumen_labels(lumen)
+    if labels.max() <= np.iinfo(np.uint8).max:  # half the bytes to compress; the same labels
+        labels = labels.astype(np.uint8)
     affine = LPS_TO_RAS @ np.asarray(lumen.affine_lps, dtype=np.float64)
     header = nibabel.Nifti1Header()
-    header.set_data_dtype(np.uint16)
+    header.set_data_dtype(labels.dtype)
     image = nibabel.Nifti1Image(labels, affine, header)
     image.set_sform(affine, code=1)
     image.set_qform(affine, code=1)
@@ -408,7 +410,8 @@ def write_mesh_stl(path: PathLike, mesh: SurfaceMesh) -> Path:
 def write_lumen_nifti(path: PathLike, lumen: LumenVolume) -> Path:
     """Write a lumen label volume as NIfTI-1 (nibabel; gzip-compressed when ``path`` ends in ``.gz``).
 
-    The data are the uint16 labels (0 outside, ``b + 1`` inside branch ``b``), intent "label".
+    The data are the labels (0 outside, ``b + 1`` inside branch ``b``; uint8 when there are fewer than
+    256 branches, uint16 otherwise), intent "label".
     NIfTI's world frame is RAS (+x right, +y anterior, +z head) while angiohull's is LPS, so the
     affine written is ``diag(-1, -1, 1, 1) @ lumen.affine_lps`` (:data:`LPS_TO_RAS`): voxel ``(i, j,
     k)`` maps to ``(-x, -y, z)`` of its LPS centre ``origin_mm + spacing_mm * (i, j, k)``. sform and

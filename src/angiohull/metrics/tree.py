@@ -112,7 +112,8 @@ from .. import _validation as _v
 from ..errors import TreeError
 from ..tree.model import VesselTree
 
-__all__ = ["TreeScores", "tree_scores", "centerline_samples", "distance_to_centerline", "overlap_key", "MAX_SAMPLES"]
+__all__ = ["TreeScores", "tree_scores", "centerline_samples", "distance_to_centerline", "overlap_key", "match_bifurcations",
+           "MAX_SAMPLES"]
 
 MAX_SAMPLES = 20_000_000
 """Most centerline samples one tree may get (a larger count asks for a larger step)."""
@@ -527,7 +528,12 @@ def _ratio(a: float, b: float) -> float:
     return a / b if b > 0 else math.nan
 
 
-def _match_bifurcations(true_points: np.ndarray, rec_points: np.ndarray, limit: float) -> tuple[int, float]:
+def match_bifurcations(true_points: np.ndarray, rec_points: np.ndarray, limit: float) -> tuple[int, float]:
+    """``(pairs, mean distance of the pairs or nan)`` of the one-to-one matching of two point sets
+    (mm) used for the bifurcations (module notes): the most pairs at most ``limit`` apart, then the
+    smallest sum of their distances."""
+    true_points = np.asarray(true_points, dtype=np.float64).reshape(-1, 3)
+    rec_points = np.asarray(rec_points, dtype=np.float64).reshape(-1, 3)
     if len(true_points) == 0 or len(rec_points) == 0:
         return 0, math.nan
     distance = np.sqrt(((true_points[:, None, :] - rec_points[None, :, :]) ** 2).sum(axis=2))
@@ -616,7 +622,7 @@ def tree_scores(reconstructed: VesselTree, truth: VesselTree, *, sample_step_mm:
 
     true_bif = truth.bifurcation_points_mm
     rec_bif = reconstructed.bifurcation_points_mm
-    n_matched, bif_error = _match_bifurcations(true_bif, rec_bif, match)
+    n_matched, bif_error = match_bifurcations(true_bif, rec_bif, match)
 
     return TreeScores(
         centerline_mean_mm=0.5 * (mean_tr + mean_rt),

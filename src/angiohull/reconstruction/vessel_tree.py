@@ -490,17 +490,20 @@ def _dilated(volume: np.ndarray, cells: int) -> np.ndarray:
     return out.astype(bool)
 
 
-def _skeleton_radius(carved: np.ndarray, skeleton: np.ndarray, spacing_mm: float,
-                     grown: np.ndarray | None = None) -> np.ndarray:
-    """(N,) distance (mm) from each skeleton voxel (``np.argwhere`` order) to the nearest voxel outside
-    the carved volume (a full 3D distance transform costs ten times more for the few hundred voxels
-    that need it). ``grown``: the carved volume dilated by one cell, when already at hand."""
-    shell = (grown if grown is not None else _dilated(carved, 1)) & ~carved
-    voxels = np.argwhere(skeleton)
-    if len(voxels) == 0:
-        return np.zeros(0)
-    distance, _ = cKDTree(np.argwhere(shell)).query(voxels)
-    return distance * spacing_mm
+def _skeleton_input(volume: np.ndarray, bridge: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """The volume the centerline paths run through (``volume`` dilated by ``bridge`` cells), its
+    voxels' distance from the boundary in voxels when it is cheap to give (None otherwise), and the
+    distance of every voxel of it to the nearest cell outside the undilated ``volume`` (0 for the
+    cells the dilation added), all in ``np.argwhere`` order of the returned volume."""
+    grown = _dilated(volume, 1)
+    shell = grown & ~volume  # the empty cells next to the volume
+    paths = grown if bridge == 1 else _dilated(volume, bridge) if bridge else volume
+    voxels = np.argwhere(paths)
+    # a k-d tree on those few cells costs a fraction of a full 3D distance transform of the box
+    depth, _ = cKDTree(np.argwhere(shell)).query(voxels)
+    depth[shell[tuple(voxels.T)]] = 0.0
+    dbf = depth + 1.0 if bridge == 1 else depth if bridge == 0 else None  # one dilation adds one cell
+    return paths, dbf, depth
 
 
 def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray],
@@ -540,10 +543,10 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     if occupied > settings.max_voxels:
         raise ReconstructionError(f"the hull fills {occupied:,} cells of {spacing:.2f} mm, more than a vessel tree's "
                                   f"{settings.max_voxels:,}; are the masks vessel masks?")
-    bridge = int(np.floor(settings.bridge_mm / spacing))
-    grown = _dilated(volume, 1)
-    skeleton, _ = teasar_skeleton(grown if bridge == 1 else _dilated(volume, bridge) if bridge else volume)
-    radius_volume = _skeleton_radius(volume, skeleton, spacing, grown)
+    paths, dbf, depth = _skeleton_input(volume, int(np.floor(settings.bridge_mm / spacing)))
+    skeleton, _ = teasar_skeleton(paths, dbf=dbf)
+    # the skeleton's voxels among the path volume's (both in C order): their distance to an empty cell
+    radius_volume = depth[skeleton[paths]] * spacing
     images = [np.asarray(m, dtype=np.float32) for m in masks]
     bridge = None
     if support_points_mm is not None and len(support_points_mm):

@@ -11,8 +11,9 @@ of the true depth).
 and inside, nowhere else) and takes its zero level set with marching cubes (Lewiner's method of
 scikit-image): the surface is closed (the grid reaches past the solid on every side), made of
 triangles with outward normals, and converges to the exact union as the step shrinks. The default
-step is half the smallest radius, at most 0.3 mm (a 1.5 mm tube then loses about 1 % of its
-volume), and no finer than the bounding box allows in :data:`MAX_GRID_VOXELS` voxels.
+step is half the smallest radius (the 5th percentile of the point radii), at most 0.3 mm (a 1.5 mm
+tube then loses about 1 % of its volume), and no finer than the bounding box allows in
+:data:`MAX_GRID_VOXELS` voxels.
 :func:`lumen_labels` labels the grid's voxel centres inside the solid with the branch (index + 1)
 of the capsule that contains them most deeply (0 outside).
 """
@@ -141,11 +142,12 @@ def contains(tree: VesselTree, points_mm: np.ndarray) -> np.ndarray:
 
 
 def default_step_mm(tree: VesselTree) -> float:
-    """Grid step of :func:`surface_mesh`: half the smallest radius, at most 0.3 mm, coarsened so
-    that the bounding box holds at most :data:`MAX_GRID_VOXELS` voxels."""
+    """Grid step of :func:`surface_mesh`: half the smallest radius (the 5th percentile of the point
+    radii, so that a few thin points at a tip do not refine the whole grid), at most 0.3 mm,
+    coarsened so that the bounding box holds at most :data:`MAX_GRID_VOXELS` voxels."""
     low, high = tree.bounding_box_mm()
-    radius_min, _ = tree.radius_range_mm
-    step = min(0.5 * radius_min, _MAX_STEP_MM)
+    smallest = float(np.percentile(tree.points()[1], 5))
+    step = min(0.5 * smallest, _MAX_STEP_MM)
     extent = high - low + 4 * step
     coarsest = float(np.prod(extent) / MAX_GRID_VOXELS) ** (1.0 / 3.0)
     return max(step, coarsest)
@@ -155,8 +157,8 @@ def _distance_grid(tree: VesselTree, step_mm: float,
                    with_owner: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Signed distance on a grid covering the solid with a margin (exact within ``_BAND_STEPS``
     steps of the surface and inside; ``_BAND_STEPS`` steps elsewhere), the grid origin (centre
-    of voxel 0) and, ``with_owner``, the branch of the capsule giving each voxel's distance (-1
-    where none is within the band)."""
+    of voxel 0) and, ``with_owner``, one plus the branch of the capsule giving each voxel's distance
+    (0 where none is within the band)."""
     a, b, radius, branch = tree.capsules()
     low, high = tree.bounding_box_mm()
     band = _BAND_STEPS * step_mm
@@ -166,7 +168,7 @@ def _distance_grid(tree: VesselTree, step_mm: float,
         raise TreeError(f"a grid step of {step_mm:.3g} mm needs {int(np.prod(shape)):,} voxels for this tree "
                         f"({(high - low).round(1).tolist()} mm); use a larger step")
     distance = np.full(tuple(shape), np.float32(band), dtype=np.float32)
-    owner = np.full(tuple(shape), -1, dtype=np.int16) if with_owner else None
+    owner = np.zeros(tuple(shape), dtype=np.uint16) if with_owner else None
     lo = np.floor((np.minimum(a, b) - radius[:, None] - band - origin) / step_mm).astype(np.int64)
     hi = np.ceil((np.maximum(a, b) + radius[:, None] + band - origin) / step_mm).astype(np.int64)
     lo, hi = np.maximum(lo, 0), np.minimum(hi, shape - 1)
@@ -189,7 +191,7 @@ def _distance_grid(tree: VesselTree, step_mm: float,
         else:
             closer = d < block
             np.copyto(block, d, where=closer)
-            np.copyto(owner[x0:x1, y0:y1, z0:z1], np.int16(branch[i]), where=closer)
+            np.copyto(owner[x0:x1, y0:y1, z0:z1], np.uint16(branch[i] + 1), where=closer)
     return distance, origin, owner
 
 
@@ -211,8 +213,9 @@ def _mesh(distance: np.ndarray, origin: np.ndarray, step: float) -> SurfaceMesh:
 
 
 def _labels(distance: np.ndarray, owner: np.ndarray, origin: np.ndarray, step: float) -> LumenVolume:
-    labels = np.where(distance <= 0, owner.astype(np.int32) + 1, 0).astype(np.uint16)
-    return LumenVolume(labels, origin, step)
+    """The label volume from the grid's owners (``owner`` is reused): 0 outside the solid."""
+    owner[distance > 0] = 0
+    return LumenVolume(owner, origin, step)
 
 
 def surface_mesh(tree: VesselTree, *, step_mm: float | None = None) -> SurfaceMesh:

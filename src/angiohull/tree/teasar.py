@@ -12,8 +12,8 @@ shortest-path tree, in contrast, always reach every part of the volume they are 
    voxels are cheap, so paths run along the middle of the vessels.
 3. Repeatedly, the voxel farthest (in that cost) from the root among those not yet *covered* is a
    new target: its path back to the root, up to the first voxel already on the skeleton, joins the
-   skeleton, and every voxel within ``ball_scale * dbf + ball_voxels`` of a voxel of the new path
-   becomes covered. The loop ends when every voxel is covered.
+   skeleton, and every voxel within ``ball_scale * dbf + ball_voxels`` of its nearest voxel of the
+   new path becomes covered. The loop ends when every voxel is covered.
 
 The result is a set of paths that reaches the end of every vessel (thinning stops short of them),
 with no hole; small side paths where the surface bulges are possible and are the spur pruning's
@@ -36,8 +36,8 @@ _OFFSETS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in 
                      if (i, j, k) > (0, 0, 0)], dtype=np.int64)
 
 
-def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5,
-                    ball_voxels: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5, ball_voxels: float = 2.0,
+                    dbf: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Centerline paths of a 3D bool volume (module notes).
 
     Parameters
@@ -45,6 +45,9 @@ def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5,
     volume : (X, Y, Z) bool array
     ball_scale, ball_voxels : float, keyword-only
         A path covers the voxels within ``ball_scale * dbf + ball_voxels`` (voxels) of its voxels.
+    dbf : (N,) float array, optional, keyword-only
+        The distance from the boundary (voxels) of every voxel of the volume, in ``np.argwhere``
+        order, when the caller has it (else computed: to the nearest outside voxel).
 
     Returns
     -------
@@ -64,16 +67,21 @@ def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5,
         return skeleton, np.zeros(0)
     # 1. distance from the boundary: to the nearest outside voxel next to the volume (a k-d tree on
     # those few voxels costs a fraction of a full distance transform of the box)
-    padded = np.pad(volume, 1)
-    grown = padded.view(np.uint8)
-    for axis in range(3):
-        grown = ndi.maximum_filter1d(grown, 3, axis=axis, mode="constant", cval=0)
-    shell = np.argwhere(grown.astype(bool) & ~padded) - 1
-    dbf, _ = cKDTree(shell).query(voxels, workers=-1)
+    if dbf is None:
+        padded = np.pad(volume, 1)
+        grown = padded.view(np.uint8)
+        for axis in range(3):
+            grown = ndi.maximum_filter1d(grown, 3, axis=axis, mode="constant", cval=0)
+        shell = np.argwhere(grown.astype(bool) & ~padded) - 1
+        dbf, _ = cKDTree(shell).query(voxels)
+    else:
+        dbf = np.asarray(dbf, dtype=np.float64)
+        if dbf.shape != (n,) or not np.all(dbf > 0):
+            raise TreeError(f"dbf must hold a distance > 0 for each of the volume's {n} voxels, got shape {dbf.shape}")
 
     # 2. the voxel graph and its shortest-path forest from each part's deepest voxel
-    index = np.full(volume.shape, -1, dtype=np.int64)
-    index[tuple(voxels.T)] = np.arange(n)
+    index = np.full(volume.shape, -1, dtype=np.int32)
+    index[tuple(voxels.T)] = np.arange(n, dtype=np.int32)
     heads, tails, lengths = [], [], []
     upper = np.array(volume.shape)
     for offset in _OFFSETS:
@@ -98,12 +106,19 @@ def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5,
     on_path = np.zeros(n, dtype=bool)
     on_path[roots] = True
     covered = np.zeros(n, dtype=bool)
-    search = cKDTree(voxels)
-    for root in roots:
-        covered[search.query_ball_point(voxels[root], ball_scale * dbf[root] + ball_voxels)] = True
-    iterations = 0
+    reach = ball_scale * dbf + ball_voxels
+
+    def cover(path: np.ndarray) -> None:
+        """Mark the voxels within reach of a voxel of ``path`` (nearest path voxel decides)."""
+        todo = np.flatnonzero(~covered)
+        gap, nearest = cKDTree(voxels[path]).query(voxels[todo], distance_upper_bound=float(reach[path].max()))
+        hit = np.isfinite(gap)
+        hit[hit] = gap[hit] <= reach[path][nearest[hit]]
+        covered[todo[hit]] = True
+        covered[path] = True
+
+    cover(roots)
     while True:
-        iterations += 1
         uncovered = np.flatnonzero(~covered)
         if len(uncovered) == 0:
             break
@@ -116,9 +131,7 @@ def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5,
             path.append(step)
         path = np.array(path)
         on_path[path] = True
-        hits = search.query_ball_point(voxels[path], ball_scale * dbf[path] + ball_voxels, return_sorted=False)
-        covered[np.concatenate([np.asarray(h, dtype=np.int64) for h in hits])] = True
-        covered[path] = True
+        cover(path)
     chosen = np.flatnonzero(on_path)
     skeleton[tuple(voxels[chosen].T)] = True
     # np.argwhere order is the voxels' C order, as chosen (voxels came from np.argwhere too)
