@@ -84,6 +84,7 @@ class TreeSettings:
     overlap_margin_px: float = 1.5  # projected discs closer than this (beyond touching) overlap
     overlap_margin_mm: float = 1.0  # points farther apart in 3D than the two radii plus this are distinct vessels
     radius_smoothing_mm: float = 0.5  # Gaussian sigma of the radii along a branch, mm
+    max_unseen_share: float = 0.75  # a leaf branch no view sees over this share of its points is removed
     end_reach_radii: float = 3.0  # how far a tip may move (either way), in radii
     max_bridge_mm: float = 40.0  # longest path through the support hull that joins a part to the tree
     skeleton: SkeletonSettings = field(default_factory=SkeletonSettings)
@@ -102,6 +103,7 @@ class TreeBuild:
 
     skeleton: SkeletonInfo
     points_fitted: int  # tree points after resampling
+    unseen_leaves_removed: int  # leaf branches removed because no view saw them
     seen_share: tuple[float, ...]  # per view: share of the points whose cross-section it sees
     junction_points: int  # points whose radius was interpolated near a bifurcation
     tips_moved_mm: tuple[float, ...]  # per tip: how far it moved (+ out, - back)
@@ -170,6 +172,29 @@ class _Arrays:
             if p == parent:
                 self.points[self.starts[child]] = self.points[self.anchor(child)]
 
+    def without_unseen_leaves(self, seen: np.ndarray, share: float) -> tuple["_Arrays", int]:
+        """The arrays without the leaf branches (no child) that no view sees over at least
+        ``share`` of their points, repeatedly (a branch whose children all go may go next); the
+        root stays. Returns the new arrays and the number of branches removed."""
+        unseen = seen.sum(axis=0) == 0
+        alive = np.ones(len(self.counts), dtype=bool)
+        while True:
+            parents = {p for b, p in enumerate(self.parents) if alive[b] and p is not None}
+            drop = [b for b in range(1, len(self.counts)) if alive[b] and b not in parents
+                    and unseen[self.span(b)].mean() >= share]
+            if not drop:
+                break
+            alive[drop] = False
+        if alive.all():
+            return self, 0
+        index = np.cumsum(alive) - 1
+        keep = np.repeat(alive, self.counts)
+        counts = self.counts[alive]
+        parents = [None if self.parents[b] is None else int(index[self.parents[b]]) for b in np.flatnonzero(alive)]
+        arrays = _Arrays(self.points[keep], self.radius[keep], np.cumsum(counts) - counts, counts, parents,
+                         [self.parent_points[b] for b in np.flatnonzero(alive)], [self.names[b] for b in np.flatnonzero(alive)])
+        return arrays, int((~alive).sum())
+
     def tree(self) -> VesselTree:
         branches = []
         for b in range(len(self.counts)):
@@ -195,9 +220,41 @@ class _Sections:
     uv: np.ndarray  # (V, N, 2)
 
 
+_REACH_BINS_PX = (12.0, 24.0, 48.0, 96.0, 192.0, 384.0)  # profiles of similar length are sampled together
+
+
+def _runs(image: np.ndarray, uv: np.ndarray, normal: np.ndarray, reach: np.ndarray,
+          step_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The run of the mask through (or within ``_SEEK_PX`` of) each point along its normal, within
+    ``reach`` px: ``(found, left edge, right edge)`` in px along the normal (edges at the 0.5
+    crossings of the bilinear mask)."""
+    n = len(uv)
+    half = int(np.ceil(reach.max() / step_px))
+    s = step_px * np.arange(-half, half + 1)
+    u = uv[:, 0, None] + s[None, :] * normal[:, 0, None]
+    v = uv[:, 1, None] + s[None, :] * normal[:, 1, None]
+    profile = ndi.map_coordinates(image, [v.ravel(), u.ravel()], order=1, mode="constant", cval=0.0).reshape(u.shape)
+    inside = profile >= 0.5
+    index = np.arange(len(s))
+    gap = np.where(inside, np.abs(index - half)[None, :], 10 ** 6)
+    seed = np.argmin(gap, axis=1)
+    found = gap[np.arange(n), seed] <= int(round(_SEEK_PX / step_px))
+    outside = ~inside
+    left = np.where(outside & (index[None, :] < seed[:, None]), index[None, :], -1).max(axis=1)
+    right = np.where(outside & (index[None, :] > seed[:, None]), index[None, :], len(s)).min(axis=1)
+    found &= (left >= 0) & (right < len(s))
+    found &= (s[np.clip(left, 0, None)] >= -reach) & (s[np.clip(right, None, len(s) - 1)] <= reach)
+    left_c, right_c = np.clip(left, 0, len(s) - 2), np.clip(right, 1, len(s) - 1)
+    rows = np.arange(n)
+    p_out, p_in = profile[rows, left_c], profile[rows, left_c + 1]
+    left_edge = s[left_c] + (0.5 - p_out) / np.maximum(p_in - p_out, 1e-9) * step_px
+    p_in, p_out = profile[rows, right_c - 1], profile[rows, right_c]
+    right_edge = s[right_c - 1] + (p_in - 0.5) / np.maximum(p_in - p_out, 1e-9) * step_px
+    return found, left_edge, right_edge
+
+
 def _sections(points: np.ndarray, tangents: np.ndarray, radius: np.ndarray, projections: Sequence[Projection],
               images: Sequence[np.ndarray], step_px: float) -> _Sections:
-    views = len(projections)
     n = len(points)
     out = {k: [] for k in ("found", "width_px", "offset_px", "normal_px", "gradient", "px_per_mm", "foreshortening", "uv")}
     for projection, image in zip(projections, images):
@@ -209,33 +266,16 @@ def _sections(points: np.ndarray, tangents: np.ndarray, radius: np.ndarray, proj
         length = np.linalg.norm(d2, axis=1)
         direction = d2 / np.maximum(length, 1e-12)[:, None]
         normal = np.column_stack([-direction[:, 1], direction[:, 0]])
-        reach = np.clip(2.5 * radius * px_per_mm + 4.0, 6.0, 40.0)
-        half = int(np.ceil(reach.max() / step_px))
-        s = step_px * np.arange(-half, half + 1)
-        u = uv[:, 0, None] + s[None, :] * normal[:, 0, None]
-        v = uv[:, 1, None] + s[None, :] * normal[:, 1, None]
-        profile = ndi.map_coordinates(image, [v.ravel(), u.ravel()], order=1, mode="constant", cval=0.0).reshape(u.shape)
-        inside = profile >= 0.5
-        centre = half
-        index = np.arange(len(s))
-        seek = int(round(_SEEK_PX / step_px))
-        gap = np.where(inside, np.abs(index - centre)[None, :], 10 ** 6)
-        seed = np.argmin(gap, axis=1)
-        found = gap[np.arange(n), seed] <= seek
-        outside = ~inside
-        left = np.where(outside & (index[None, :] < seed[:, None]), index[None, :], -1).max(axis=1)
-        right = np.where(outside & (index[None, :] > seed[:, None]), index[None, :], len(s)).min(axis=1)
-        found &= (left >= 0) & (right < len(s))
-        found &= (s[np.clip(left, 0, None)] >= -reach) & (s[np.clip(right, None, len(s) - 1)] <= reach)
-        left_c, right_c = np.clip(left, 0, len(s) - 2), np.clip(right, 1, len(s) - 1)
-        rows = np.arange(n)
-        p_out, p_in = profile[rows, left_c], profile[rows, left_c + 1]
-        left_edge = s[left_c] + (0.5 - p_out) / np.maximum(p_in - p_out, 1e-9) * step_px
-        p_in, p_out = profile[rows, right_c - 1], profile[rows, right_c]
-        right_edge = s[right_c - 1] + (p_in - 0.5) / np.maximum(p_in - p_out, 1e-9) * step_px
+        # a run up to 2.5 radii + 4 px either side (the radius may still be the hull's, too wide)
+        reach = np.clip(2.5 * radius * px_per_mm + 4.0, 6.0, _REACH_BINS_PX[-1])
+        found, left, right = np.zeros(n, dtype=bool), np.zeros(n), np.zeros(n)
+        bins = np.searchsorted(_REACH_BINS_PX, reach)
+        for b in np.unique(bins):
+            sel = np.flatnonzero(bins == b)
+            found[sel], left[sel], right[sel] = _runs(image, uv[sel], normal[sel], reach[sel], step_px)
         out["found"].append(found)
-        out["width_px"].append(np.where(found, right_edge - left_edge, np.nan))
-        out["offset_px"].append(np.where(found, 0.5 * (left_edge + right_edge), np.nan))
+        out["width_px"].append(np.where(found, right - left, np.nan))
+        out["offset_px"].append(np.where(found, 0.5 * (left + right), np.nan))
         out["normal_px"].append(normal)
         out["gradient"].append(np.einsum("ni,nij->nj", normal, jac))
         out["px_per_mm"].append(px_per_mm)
@@ -566,7 +606,10 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     arrays.smooth(settings.smoothing_mm, step)
     held = np.zeros(len(arrays.points), dtype=bool)
     seen = np.zeros((len(projections), len(arrays.points)), dtype=bool)
-    for _ in range(settings.iterations):
+    removed = 0
+    for iteration in range(settings.iterations):
+        if iteration == settings.iterations - 1:  # the last fit without the branches no view sees
+            arrays, removed = arrays.without_unseen_leaves(seen, settings.max_unseen_share)
         tangents = arrays.tangents()
         sections = _sections(arrays.points, tangents, arrays.radius, projections, images, settings.profile_step_px)
         overlap = _overlaps(sections, arrays, settings)
@@ -584,7 +627,7 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     start = time.perf_counter()
     tree, moved = _move_ends(arrays, projections, images, settings)
     timings["ends"] = time.perf_counter() - start
-    build = TreeBuild(skeleton=skeleton_info, points_fitted=len(arrays.points),
+    build = TreeBuild(skeleton=skeleton_info, points_fitted=len(arrays.points), unseen_leaves_removed=removed,
                       seen_share=tuple(float(x) for x in seen.mean(axis=1)), junction_points=int(held.sum()),
                       tips_moved_mm=tuple(moved), timings_s=timings)
     return tree, build
