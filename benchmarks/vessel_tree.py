@@ -191,6 +191,12 @@ def _xcat(task: tuple[tuple[int, ...], str]) -> dict:
             _, closest, _, _ = distance_to_centerline(moved.root.points_mm, result.tree)
             shift += (closest - moved.root.points_mm).mean(axis=0)
         row["truth_offset_mm"] = shift.tolist()
+        # away from the ends (one radius of this 17 mm tube): the reconstruction closes a vessel with a
+        # cap a radius beyond its last centerline point, while the truth runs on to the images' edge
+        arc = truth.root.arc_length_mm
+        inner = (arc > 10.0) & (arc < arc[-1] - 10.0)
+        gap, _, _, _ = distance_to_centerline(centerline[inner] + shift, result.tree)
+        row["interior_true_to_rec_translated_mm"] = float(gap.mean())
         row["centerline_mean_translated_mm"] = tree_scores(result.tree, VesselTree((Branch(centerline + shift, 1.0),))
                                                            ).centerline_mean_mm
         row.update({k: scores[k] for k in ("centerline_mean_mm", "centerline_mean_true_to_rec_mm",
@@ -312,7 +318,8 @@ def _xcat_section(rows: list[dict], offsets: dict[int, float]) -> list[str]:
              "Mean ± sd (median) of the centerline scores; Ot in [0, 1].", "",
              "| views | preset | cases | centerline mean mm | true → reconstructed mm | reconstructed → true mm | "
              "p95 mm | Ot(1 mm) | Ot(1 mm) reverse | length / true length | centerline mean after the best common "
-             "translation of the truth mm |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "translation of the truth mm | true → reconstructed, translated, more than 10 mm from the ends mm |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     def gap(r: dict) -> float:
         return abs(r["angles_deg"][-1] - r["angles_deg"][0])
 
@@ -330,7 +337,7 @@ def _xcat_section(rows: list[dict], offsets: dict[int, float]) -> list[str]:
                          f"{cell('centerline_mean_true_to_rec_mm')} | {cell('centerline_mean_rec_to_true_mm')} | "
                          f"{cell('centerline_p95_mm')} | {cell('ot1mm')} | {cell('ot1mm_reverse')} | "
                          f"{_median(r['length_mm'] / r['true_length_mm'] for r in group)} | "
-                         f"{cell('centerline_mean_translated_mm')} |")
+                         f"{cell('centerline_mean_translated_mm')} | {cell('interior_true_to_rec_translated_mm')} |")
     missing = [r for r in rows if r.get("centerline_mean_mm") is None]
     if missing:
         lines += ["", f"No tree in {len(missing)} reconstructions: " + "; ".join(

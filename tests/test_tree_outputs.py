@@ -120,3 +120,23 @@ metrics: [dice3d, centerline_mean_mm, ot1mm, radius_mae_mm, branch_recall]
     assert main(["report", str(run), "-o", str(tmp_path / "report")]) == 0
     text = (tmp_path / "report" / "report.md").read_text()
     assert "centerline distance, mean (mm)" in text and "branch recall" in text
+
+
+def test_a_part_the_tree_cannot_join_is_reported_not_lost_silently(tmp_path, capsys):
+    from angiohull.geometry import CArmGeometry, parse_clinical_angles
+    from angiohull.study import View, save_study
+    from angiohull.synthetic import Tube, TubePhantom
+
+    # two vessels 30 mm apart: the paper preset has no carving to bridge them through
+    phantom = TubePhantom((Tube(np.linspace([-30, -15, 0], [30, -15, 5], 121), 1.5),
+                           Tube(np.linspace([-20, 15, 0], [20, 15, -5], 81), 1.0)), "two")
+    views = []
+    for text in ("RAO 30 CRA 30", "LAO 60 CRA 30", "RAO 30 CAU 30"):
+        carm = CArmGeometry(*parse_clinical_angles(text), 1200.0, 800.0, (0.35, 0.35), (512, 512))
+        views.append(View.from_carm(text.replace(" ", ""), phantom.silhouette(carm.projection()), carm))
+    study = save_study(tmp_path / "two", views)
+    assert main(["reconstruct", str(study), "-o", str(tmp_path / "out"), "--no-figure", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "angiohull: warning: the vessel tree leaves out 1 part(s) of the hull" in err
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["tree"]["build"]["parts_dropped"] == 1 and report["tree"]["build"]["length_dropped_mm"] > 10

@@ -186,6 +186,12 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
         if result.tree is not None:
             progress(f"vessel tree: {result.tree.n_branches} branches, {len(result.tree.bifurcations)} bifurcations, "
                      f"{result.tree.length_mm:.1f} mm ({result.timings_s.get('tree', 0.0):.3f} s)")
+            skeleton = result.tree_build.skeleton
+            if skeleton.longest_dropped_mm >= 10.0:  # the shortest branch the tree scores count
+                warnings.warn(f"the vessel tree leaves out {skeleton.parts_dropped} part(s) of the hull "
+                              f"({skeleton.length_dropped_mm:.0f} mm of skeleton, the longest "
+                              f"{skeleton.longest_dropped_mm:.0f} mm) that no short gap or path through the "
+                              f"carving joins to it (report.json: tree.build)", TreeWarning, stacklevel=1)
         else:
             warnings.warn(f"no vessel tree: {result.tree_error}", TreeWarning, stacklevel=1)
     silhouettes = workflow.view_silhouettes(study, result)

@@ -173,9 +173,11 @@ def tree_summary(tree: VesselTree | None, build: Any = None, error: str | None =
         out["build"] = {
             "skeleton_voxels": sk.skeleton_voxels, "skeleton_parts": sk.parts, "parts_joined": sk.parts_joined,
             "parts_bridged_through_carved_hull": sk.parts_bridged, "parts_dropped": sk.parts_dropped,
-            "voxels_dropped": sk.voxels_dropped, "spurs_removed": sk.spurs_removed, "cycles_cut": sk.cycles_cut,
+            "voxels_dropped": sk.voxels_dropped, "length_dropped_mm": sk.length_dropped_mm,
+            "spurs_removed": sk.spurs_removed, "cycles_cut": sk.cycles_cut,
             "points_fitted": build.points_fitted, "view_sees_share": list(build.seen_share),
-            "points_no_view_sees": build.junction_points, "tips_moved_mm": list(build.tips_moved_mm),
+            "points_no_view_sees": build.unseen_points, "unseen_leaves_removed": build.unseen_leaves_removed,
+            "tips_moved_mm": list(build.tips_moved_mm),
             "timings_s": dict(build.timings_s),
         }
     return out

@@ -27,24 +27,27 @@ views) into a :class:`~angiohull.tree.VesselTree`:
      inside the profile),
    - the vessel is not foreshortened there (the projected tangent is at least
      ``min_foreshortening`` of its length at that depth), and
-   - nothing else of the tree overlaps it: no point of the tree that is apart in 3D (farther than
-     the two radii plus ``overlap_margin_mm``) projects within the two projected radii plus
-     ``overlap_margin_px``.
+   - nothing else of the tree overlaps it: no point of another branch, or of the same branch
+     farther along it than the two radii plus ``overlap_margin_mm`` (a loop crossing itself),
+     projects within the two projected radii plus ``overlap_margin_px``.
    Each seeing view gives the radius ``w / 2 * depth / f`` (``f`` the focal length in pixels);
-   the point's radius is their median (their mean with two). Without a seeing view, the smallest
-   radius any view gives (an overlap only widens the run). The point moves by the least-squares
-   step that puts its projection on the middles of the seeing views' runs (along each view's
-   normal; the step along the 3D tangent is held at zero), at most one radius per iteration, then
-   the branches are smoothed again (``smoothing_mm / 2``).
-4. **Junctions.** Near a bifurcation a cross-section crosses both vessels. Points closer to a point
-   of another branch than the two radii plus ``overlap_margin_mm`` keep their position, and their
-   radius is interpolated along the branch from the points on either side.
-5. **Ends.** Thinning stops short of a vessel's end (by up to a radius) or overshoots it where the
-   hull ends in a point. Each tip of the tree (the root's start and every branch end with no child
-   there) moves along its tangent to the farthest place, within three radii, where the end cap
+   the point's radius is their median (their mean with two). A point no view sees (at a
+   bifurcation, where the other branch's first points overlap it in every view, or where vessels
+   cross in every view) gets its radius interpolated along its branch from the points that are
+   seen (on a branch with none, the smallest radius any view gives: an overlap only widens a run).
+   The point moves by the least-squares step that puts its projection on the middles of the
+   seeing views' runs (along each view's normal; the step along the 3D tangent is held at zero),
+   at most one radius per iteration, then the branches are smoothed again (``smoothing_mm / 2``).
+   Before the last iteration, leaf branches that no view sees over ``max_unseen_share`` of their
+   points are removed, repeatedly (spurs, stubs at a junction, phantom pieces the hull kept where
+   vessels cross in every view).
+4. **Ends.** The skeleton may stop short of a vessel's end or overshoot it where the hull ends in
+   a point. Each tip of the tree (the root's start and every branch end with no child there) moves
+   along its tangent to the farthest place, within ``end_reach_radii`` radii, where the end cap
    (the point plus one radius along the tangent) still projects onto the mask in every view; a tip
-   whose cap is outside a mask is cut back to where it is inside all of them, at most three radii.
-6. Radii are smoothed along the branch (Gaussian, ``radius_smoothing_mm``).
+   whose cap is outside a mask is cut back to where it is inside all of them (the root's start is
+   only extended, so that its children's parent points stay).
+5. Radii are smoothed along the branch (Gaussian, ``radius_smoothing_mm``) before the ends move.
 
 Arrays and projections in, a tree out; nothing here reads files.
 """
@@ -64,6 +67,7 @@ from ..geometry import Projection
 from ..tree import Branch, VesselTree
 from ..tree.skeleton import SkeletonInfo, SkeletonSettings, tree_from_skeleton
 from ..tree.teasar import teasar_skeleton
+from ..tree.voxels import neighbour_edges
 from .cube import Lattice
 
 __all__ = ["TreeSettings", "TREE_SETTINGS", "TreeBuild", "hull_tree"]
@@ -82,11 +86,11 @@ class TreeSettings:
     profile_step_px: float = 0.5  # sampling step along a cross-section, px (edges interpolated between samples)
     min_foreshortening: float = 0.4  # a view sees a cross-section when the vessel is at most ~66 deg out of its plane
     overlap_margin_px: float = 1.5  # projected discs closer than this (beyond touching) overlap
-    overlap_margin_mm: float = 1.0  # points farther apart in 3D than the two radii plus this are distinct vessels
+    overlap_margin_mm: float = 1.0  # points of one branch farther apart along it than the two radii plus this can overlap
     radius_smoothing_mm: float = 0.5  # Gaussian sigma of the radii along a branch, mm
     max_unseen_share: float = 0.75  # a leaf branch no view sees over this share of its points is removed
     end_reach_radii: float = 3.0  # how far a tip may move (either way), in radii
-    max_bridge_mm: float = 40.0  # longest path through the support hull that joins a part to the tree
+    max_bridge_mm: float = 80.0  # longest path through the support hull that joins a part to the tree
     skeleton: SkeletonSettings = field(default_factory=SkeletonSettings)
 
 
@@ -105,7 +109,7 @@ class TreeBuild:
     points_fitted: int  # tree points after resampling
     unseen_leaves_removed: int  # leaf branches removed because no view saw them
     seen_share: tuple[float, ...]  # per view: share of the points whose cross-section it sees
-    junction_points: int  # points whose radius was interpolated near a bifurcation
+    unseen_points: int  # points no view sees (radius interpolated along the branch)
     tips_moved_mm: tuple[float, ...]  # per tip: how far it moved (+ out, - back)
     timings_s: dict[str, float]
 
@@ -458,68 +462,61 @@ def _occupancy(points_mm: np.ndarray, lattice: Lattice, cell_mm: float) -> tuple
 
 
 class _SupportBridge:
-    """Shortest paths through a support hull, for :func:`~angiohull.tree.skeleton.tree_from_skeleton`."""
+    """Shortest paths through a support hull, for :func:`~angiohull.tree.skeleton.tree_from_skeleton`:
+    through its cells, or, where they hold no path (the carving, too, has gaps of a cell or two in
+    thin vessels), through its cells grown by one. Each graph is built on first use."""
 
     def __init__(self, support_mm: np.ndarray, lattice: Lattice, limit_mm: float):
-        self._support, self._lattice, self._limit = support_mm, lattice, limit_mm
-        self._graph = None
-
-    def _build(self) -> None:
-        """The support's voxel graph (26-neighbours, edge = distance), built on first use."""
-        import scipy.sparse as sparse
-
-        support_mm, lattice = self._support, self._lattice
+        self._lattice, self._limit = lattice, limit_mm
         h = lattice.spacing_mm
-        self._half, self._h = lattice.half_edge_mm, h
-        ijk = np.round((support_mm + self._half) / h).astype(np.int64)
-        self._low = ijk.min(axis=0) - 1
+        ijk = np.round((support_mm + lattice.half_edge_mm) / h).astype(np.int64)
+        self._low = ijk.min(axis=0) - 2
         local = ijk - self._low
-        self._shape = tuple(local.max(axis=0) + 2)
-        self._index = np.full(self._shape, -1, dtype=np.int64)
-        self._index[tuple(local.T)] = np.arange(len(local))
-        self._points = (local + self._low) * h - self._half
-        offsets = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
-                            if (i, j, k) > (0, 0, 0)])
-        heads, tails, weights = [], [], []
-        for offset in offsets:
-            other = local + offset
-            ok = np.all((other >= 0) & (other < np.array(self._shape)), axis=1)
-            j = np.full(len(local), -1, dtype=np.int64)
-            j[ok] = self._index[tuple(other[ok].T)]
-            found = j >= 0
-            heads.append(np.flatnonzero(found))
-            tails.append(j[found])
-            weights.append(np.full(int(found.sum()), h * float(np.linalg.norm(offset))))
-        heads, tails, weights = np.concatenate(heads), np.concatenate(tails), np.concatenate(weights)
-        self._graph = sparse.coo_matrix((weights, (heads, tails)), shape=(len(local), len(local))).tocsr()
+        self._occupied = np.zeros(tuple(local.max(axis=0) + 3), dtype=bool)
+        self._occupied[tuple(local.T)] = True
+        self._graphs: dict[bool, tuple] = {}
 
-    def _lookup(self, points_mm: np.ndarray) -> np.ndarray:
-        local = np.round((points_mm + self._half) / self._h).astype(np.int64) - self._low
-        ok = np.all((local >= 0) & (local < np.array(self._shape)), axis=1)
+    def _graph(self, grown: bool) -> tuple:
+        """(index volume, cell centres in mm, sparse graph) of the cells, grown by one or not."""
+        if grown not in self._graphs:
+            import scipy.sparse as sparse
+
+            h = self._lattice.spacing_mm
+            voxels = np.argwhere(_dilated(self._occupied, 1) if grown else self._occupied)
+            index = np.full(self._occupied.shape, -1, dtype=np.int64)
+            index[tuple(voxels.T)] = np.arange(len(voxels))
+            heads, tails, lengths = neighbour_edges(voxels, self._occupied.shape)
+            graph = sparse.coo_matrix((h * lengths, (heads, tails)), shape=(len(voxels), len(voxels))).tocsr()
+            self._graphs[grown] = (index, (voxels + self._low) * h - self._lattice.half_edge_mm, graph)
+        return self._graphs[grown]
+
+    def _lookup(self, index: np.ndarray, points_mm: np.ndarray) -> np.ndarray:
+        h = self._lattice.spacing_mm
+        local = np.round((points_mm + self._lattice.half_edge_mm) / h).astype(np.int64) - self._low
+        ok = np.all((local >= 0) & (local < np.array(index.shape)), axis=1)
         found = np.full(len(points_mm), -1, dtype=np.int64)
-        found[ok] = self._index[tuple(local[ok].T)]
-        return found
+        found[ok] = index[tuple(local[ok].T)]
+        found = np.unique(found)
+        return found[found >= 0]
 
     def __call__(self, part_mm: np.ndarray, tree_mm: np.ndarray) -> np.ndarray | None:
         from scipy.sparse.csgraph import dijkstra
 
-        if self._graph is None:
-            self._build()
-        sources = np.unique(self._lookup(part_mm))
-        sources = sources[sources >= 0]
-        targets = np.unique(self._lookup(tree_mm))
-        targets = targets[targets >= 0]
-        if len(sources) == 0 or len(targets) == 0:
-            return None
-        distance, predecessors, origin = dijkstra(self._graph, directed=False, indices=sources, min_only=True,
-                                                  limit=self._limit, return_predecessors=True)
-        best = targets[np.argmin(distance[targets])]
-        if not np.isfinite(distance[best]):
-            return None
-        path = [int(best)]
-        while predecessors[path[-1]] >= 0:
-            path.append(int(predecessors[path[-1]]))
-        return self._points[path[::-1]]
+        for grown in (False, True):
+            index, points, graph = self._graph(grown)
+            sources, targets = self._lookup(index, part_mm), self._lookup(index, tree_mm)
+            if len(sources) == 0 or len(targets) == 0:
+                continue
+            distance, predecessors, _ = dijkstra(graph, directed=False, indices=sources, min_only=True,
+                                                 limit=self._limit, return_predecessors=True)
+            best = targets[np.argmin(distance[targets])]
+            if not np.isfinite(distance[best]):
+                continue
+            path = [int(best)]
+            while predecessors[path[-1]] >= 0:
+                path.append(int(predecessors[path[-1]]))
+            return points[path[::-1]]
+        return None
 
 
 def _dilated(volume: np.ndarray, cells: int) -> np.ndarray:
@@ -628,6 +625,6 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     tree, moved = _move_ends(arrays, projections, images, settings)
     timings["ends"] = time.perf_counter() - start
     build = TreeBuild(skeleton=skeleton_info, points_fitted=len(arrays.points), unseen_leaves_removed=removed,
-                      seen_share=tuple(float(x) for x in seen.mean(axis=1)), junction_points=int(held.sum()),
+                      seen_share=tuple(float(x) for x in seen.mean(axis=1)), unseen_points=int(held.sum()),
                       tips_moved_mm=tuple(moved), timings_s=timings)
     return tree, build

@@ -43,13 +43,9 @@ from scipy.spatial import cKDTree
 
 from ..errors import TreeError
 from .model import Branch, VesselTree
+from .voxels import neighbour_edges
 
 __all__ = ["SkeletonSettings", "SkeletonInfo", "tree_from_skeleton"]
-
-# the 13 forward offsets of the 26-neighbourhood
-_OFFSETS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
-                     if (i, j, k) > (0, 0, 0)], dtype=np.int64)
-
 
 @dataclass(frozen=True)
 class SkeletonSettings:
@@ -71,26 +67,11 @@ class SkeletonInfo:
     parts_bridged: int = 0  # of those, by a caller's bridge path
     parts_dropped: int = 0  # too far from the tree
     voxels_dropped: int = 0
+    length_dropped_mm: float = 0.0  # skeleton length of the parts dropped
+    longest_dropped_mm: float = 0.0  # of the longest of them
     spurs_removed: int = 0
     cycles_cut: int = 0  # edges the spanning tree removed
     notes: list[str] = field(default_factory=list)
-
-
-def _edges(voxels: np.ndarray, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    index = np.full(shape, -1, dtype=np.int64)
-    index[tuple(voxels.T)] = np.arange(len(voxels))
-    heads, tails, lengths = [], [], []
-    upper = np.array(shape)
-    for offset in _OFFSETS:
-        other = voxels + offset
-        ok = np.all((other >= 0) & (other < upper), axis=1)
-        j = np.full(len(voxels), -1, dtype=np.int64)
-        j[ok] = index[tuple(other[ok].T)]
-        found = j >= 0
-        heads.append(np.flatnonzero(found))
-        tails.append(j[found])
-        lengths.append(np.full(int(found.sum()), float(np.linalg.norm(offset))))
-    return np.concatenate(heads), np.concatenate(tails), np.concatenate(lengths)
 
 
 def _adjacency(n: int, heads: np.ndarray, tails: np.ndarray) -> list[list[int]]:
@@ -185,7 +166,7 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
     n = len(voxels)
 
     # 1. graph and spanning tree
-    heads, tails, lengths = _edges(voxels, skeleton.shape)
+    heads, tails, lengths = neighbour_edges(voxels, skeleton.shape)
     weights = lengths / (radius[heads] + radius[tails])
     graph = sparse.coo_matrix((weights, (heads, tails)), shape=(n, n)).tocsr()
     spanning = minimum_spanning_tree(graph).tocoo()
@@ -218,6 +199,8 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
             if path is None or len(path) < 2:
                 info.parts_dropped += 1
                 info.voxels_dropped += len(members)
+                info.length_dropped_mm += float(part_length[p])
+                info.longest_dropped_mm = max(info.longest_dropped_mm, float(part_length[p]))
                 continue
             path = np.asarray(path, dtype=np.float64)
             a = members[int(np.argmin(np.linalg.norm(points[members] - path[0], axis=1)))]

@@ -29,12 +29,9 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from ..errors import TreeError
+from .voxels import neighbour_edges
 
 __all__ = ["teasar_skeleton"]
-
-_OFFSETS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
-                     if (i, j, k) > (0, 0, 0)], dtype=np.int64)
-
 
 def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5, ball_voxels: float = 2.0,
                     dbf: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -80,20 +77,7 @@ def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5, ball_voxels:
             raise TreeError(f"dbf must hold a distance > 0 for each of the volume's {n} voxels, got shape {dbf.shape}")
 
     # 2. the voxel graph and its shortest-path forest from each part's deepest voxel
-    index = np.full(volume.shape, -1, dtype=np.int32)
-    index[tuple(voxels.T)] = np.arange(n, dtype=np.int32)
-    heads, tails, lengths = [], [], []
-    upper = np.array(volume.shape)
-    for offset in _OFFSETS:
-        other = voxels + offset
-        ok = np.all((other >= 0) & (other < upper), axis=1)
-        j = np.full(n, -1, dtype=np.int64)
-        j[ok] = index[tuple(other[ok].T)]
-        found = j >= 0
-        heads.append(np.flatnonzero(found))
-        tails.append(j[found])
-        lengths.append(np.full(int(found.sum()), float(np.linalg.norm(offset))))
-    heads, tails, lengths = np.concatenate(heads), np.concatenate(tails), np.concatenate(lengths)
+    heads, tails, lengths = neighbour_edges(voxels, volume.shape)
     cost = lengths / (0.5 * (dbf[heads] + dbf[tails])) ** 2
     graph = sparse.coo_matrix((cost, (heads, tails)), shape=(n, n)).tocsr()
     parts, label = connected_components(graph, directed=False)
