@@ -184,7 +184,7 @@ def test_one_view_shifted_by_20_px_is_found_and_the_hull_restored(seed):
     assert np.linalg.norm(shifts[1:], axis=1).max() < 0.5
 
     def dice3d(projs, ms):
-        points = reconstruct(projs, ms, centerlines=False, allow_empty=True).vessel_points_mm
+        points = reconstruct(projs, ms, centerlines=False, tree=False, allow_empty=True).vessel_points_mm
         return scores_3d(points, shifted.surface_points_mm).dice3d
 
     before = dice3d(projections, masks)
@@ -219,7 +219,7 @@ def test_real_phantom_views_agree_after_calibration(ge_phantom_dir):
     masks = [segment_vessels(v.image) for v in views]
     calibration = calibrate_shifts(projections, masks, max_shift_px=80.0)
     corrected = calibration.corrected(projections)
-    result = reconstruct(corrected, masks, resolution=256, centerlines=False)
+    result = reconstruct(corrected, masks, resolution=256, centerlines=False, tree=False)
     scores = [dice2d(cell_silhouette(result.vessel_points_mm, p, result.lattice_spacing_mm), m)
               for p, m in zip(corrected, masks)]
     # Header geometry: 73 / 69 / 67 % at K = 100 (docs/dicom.md); calibrated, K = 256: 88 / 88 / 86 %.

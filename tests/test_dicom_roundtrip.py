@@ -31,7 +31,7 @@ def phantom():
 def in_memory(phantom):
     carms = [_carm(name) for name in VIEWS]
     masks = [phantom.silhouette(carm) for carm in carms]
-    return carms, masks, reconstruct([c.projection() for c in carms], masks, resolution=100, centerlines=False)
+    return carms, masks, reconstruct([c.projection() for c in carms], masks, resolution=100, centerlines=False, tree=False)
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +60,7 @@ def test_reconstruction_through_dicom_equals_the_in_memory_one(xa_files, in_memo
     _, _, expected = in_memory
     views = [read_xa_view(path) for path in xa_files]
     result = reconstruct([v.carm.projection() for v in views], [v.image < (BACKGROUND + VESSEL) // 2 for v in views],
-                         resolution=100, centerlines=False)
+                         resolution=100, centerlines=False, tree=False)
     np.testing.assert_array_equal(result.vessel_points_mm, expected.vessel_points_mm)
     truth = phantom.surface_points_mm(0.5)
     through_dicom = scores_3d(result.vessel_points_mm, truth)
@@ -79,6 +79,6 @@ def test_a_mirrored_primary_angle_would_not_reconstruct(xa_files, in_memory, pha
                         sid=SID, sod=SOD, spacing=SPACING)
         views.append(read_xa_view(path))
     wrong = reconstruct([v.carm.projection() for v in views], [v.image < 120 for v in views], resolution=100,
-                        centerlines=False, allow_empty=True)
+                        centerlines=False, tree=False, allow_empty=True)
     truth = phantom.surface_points_mm(0.5)
     assert scores_3d(wrong.vessel_points_mm, truth).dice3d < 0.5 * scores_3d(expected.vessel_points_mm, truth).dice3d

@@ -144,7 +144,7 @@ def test_run_case_scores_like_the_library():
     assert set(row) == set(row_columns(load_config("general")))
     assert row["status"] == "ok" and row["reason"] == "" and row["tortuosity"] == "tortuous"
     inputs = case_inputs(params)
-    result = reconstruct(list(inputs.projections), list(inputs.masks), engine="kdtree", centerlines=False)
+    result = reconstruct(list(inputs.projections), list(inputs.masks), engine="kdtree", centerlines=False, tree=False)
     s3 = scores_3d(result.vessel_points_mm, inputs.ground_truth_mm)
     assert row["n_points"] == len(result.vessel_points_mm)  # octree keeps exactly the kdtree's points
     assert (row["dice3d"], row["iou3d"], row["chamfer_mm"]) == (s3.dice3d, s3.iou3d, s3.chamfer_mm)

@@ -69,7 +69,7 @@ def test_sphere_seen_by_three_views_is_kept_entirely():
     centre, radius = np.array([4.0, -3.0, 2.0]), 12.0
     projections = [view(0, 0), view(90, 0), view(-30, 40)]
     masks = [sphere_mask(p, centre, radius) for p in projections]
-    result = reconstruct(projections, masks, resolution=60, centerlines=False)
+    result = reconstruct(projections, masks, resolution=60, centerlines=False, tree=False)
     lattice = result.lattice.points()
     inside = np.linalg.norm(lattice - centre, axis=1) <= radius
     kept = {tuple(x) for x in result.vessel_points_mm}
@@ -84,7 +84,7 @@ def test_points_outside_every_silhouette_cone_are_removed():
     centre, radius = np.zeros(3), 8.0
     projections = [view(0, 0), view(90, 0)]
     masks = [sphere_mask(p, centre, radius) for p in projections]
-    result = reconstruct(projections, masks, resolution=50, centerlines=False)
+    result = reconstruct(projections, masks, resolution=50, centerlines=False, tree=False)
     # a point's distance to the nearest mask pixel, computed independently by brute force
     lattice = result.lattice.points()
     far = np.zeros(len(lattice), bool)
@@ -113,7 +113,7 @@ def test_engine_agrees_with_a_slow_per_point_loop(seed, threshold):
         m = rng.random((40, 48)) < 0.25
         projections.append(p)
         masks.append(m)
-    result = reconstruct(projections, masks, resolution=14, threshold_px=threshold, centerlines=False)
+    result = reconstruct(projections, masks, resolution=14, threshold_px=threshold, centerlines=False, tree=False)
     lattice = result.lattice.points()
     expected = lattice[slow_keep(lattice, projections, masks, threshold)]
     np.testing.assert_array_equal(result.vessel_points_mm, expected)
@@ -124,7 +124,7 @@ def test_points_behind_the_source_are_dropped():
     k = np.array([[50.0, 0, 32], [0, 50.0, 32], [0, 0, 1]])
     p = Projection(k @ np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0]]), (64, 64))  # source at origin
     mask = np.ones((64, 64), bool)
-    result = reconstruct([p], [mask], resolution=11, half_edge_mm=10.0, centerlines=False)
+    result = reconstruct([p], [mask], resolution=11, half_edge_mm=10.0, centerlines=False, tree=False)
     pts = result.vessel_points_mm
     assert len(pts) > 0 and np.all(pts[:, 2] > 0)
     lattice = result.lattice.points()
@@ -137,7 +137,7 @@ def test_points_behind_the_source_are_dropped():
 def test_cube_of_interest_from_the_views():
     projections = [view(0, 0, shape=(100, 120), spacing=0.5), view(90, 0, shape=(128, 128), spacing=0.5)]
     masks = [np.ones(p.image_shape, bool) for p in projections]
-    result = reconstruct(projections, masks, resolution=5, centerlines=False)
+    result = reconstruct(projections, masks, resolution=5, centerlines=False, tree=False)
     assert result.lattice.half_edge_mm == pytest.approx(cube_half_edge_mm(projections))
     assert result.lattice.half_edge_mm == pytest.approx(SOD * 128 * 0.5 / (2 * SID))
     assert result.lattice_spacing_mm == pytest.approx(2 * result.lattice.half_edge_mm / 4)

@@ -45,8 +45,8 @@ def test_a_straight_tube_is_trimmed_from_a_square_to_its_radius():
     # the square |y|, |z| <= r (corners at r sqrt 2). The refined hull keeps only points within
     # r + slack (+ the threshold's widening).
     start, end, radius, projections, masks = _rod()
-    paper = reconstruct(projections, masks, resolution=256, centerlines=False)
-    refined = reconstruct(projections, masks, preset="refined", centerlines=False)
+    paper = reconstruct(projections, masks, resolution=256, centerlines=False, tree=False)
+    refined = reconstruct(projections, masks, preset="refined", centerlines=False, tree=False)
     spacing = refined.lattice_spacing_mm
     inner = lambda pts: pts[np.abs(pts[:, 0]) < 25]  # away from the end caps
     d_paper = _axis_distance(inner(paper.vessel_points_mm), start, end)
@@ -67,7 +67,7 @@ def test_refined_beats_paper_on_generated_trees(views):
     for seed in (0, 1, 2):
         case = make_case(SynthOptions(seed=seed, views=views, rasteriser="paper"))
         projections, masks = [v.projection for v in case.views], [v.mask for v in case.views]
-        score = {preset: scores_3d(reconstruct(projections, masks, preset=preset, centerlines=False).vessel_points_mm,
+        score = {preset: scores_3d(reconstruct(projections, masks, preset=preset, centerlines=False, tree=False).vessel_points_mm,
                                    case.surface_points_mm) for preset in ("paper", "refined")}
         gains.append(score["refined"].dice3d - score["paper"].dice3d)
     assert np.mean(gains) > 3.0
@@ -77,8 +77,8 @@ def test_false_positives_at_five_percent():
     # The paper's rule collapses under 5 % false-positive pixels; the refined preset does not.
     case = make_case(SynthOptions(seed=3, views="perpendicular", rasteriser="paper", corruptions=("fp=0.05",)))
     projections, masks = [v.projection for v in case.views], [v.mask for v in case.views]
-    paper = scores_3d(reconstruct(projections, masks, centerlines=False).vessel_points_mm, case.surface_points_mm)
-    refined = scores_3d(reconstruct(projections, masks, preset="refined", centerlines=False).vessel_points_mm,
+    paper = scores_3d(reconstruct(projections, masks, centerlines=False, tree=False).vessel_points_mm, case.surface_points_mm)
+    refined = scores_3d(reconstruct(projections, masks, preset="refined", centerlines=False, tree=False).vessel_points_mm,
                         case.surface_points_mm)
     assert paper.dice3d < 40.0
     assert refined.dice3d >= 70.0
@@ -109,7 +109,7 @@ def test_a_view_that_sees_the_vessel_overlapped_does_not_erase_it():
     band = masks[0].copy()
     band[rows.max() + 1: rows.max() + 1 + 3 * len(rows), :] = masks[0][rows.min()]  # the neighbour, below
     masks[0] = band
-    carved = reconstruct(projections, masks, resolution=256, centerlines=False)
+    carved = reconstruct(projections, masks, resolution=256, centerlines=False, tree=False)
     points = carved.vessel_points_mm
     deep = points[(np.abs(points[:, 0]) < 25)
                   & (_axis_distance(points, start, end) < radius - 2 * carved.lattice_spacing_mm)]
@@ -131,9 +131,9 @@ def test_refined_gains_with_more_views():
     views = "RAO 30 CRA 30; LAO 60 CRA 30; RAO 30 CAU 30; LAO 45 CAU 30; AP; LAO 90"
     case = make_case(SynthOptions(seed=0, views=views, rasteriser="paper"))
     projections, masks = [v.projection for v in case.views], [v.mask for v in case.views]
-    plain = scores_3d(reconstruct(projections, masks, resolution=256, centerlines=False).vessel_points_mm,
+    plain = scores_3d(reconstruct(projections, masks, resolution=256, centerlines=False, tree=False).vessel_points_mm,
                       case.surface_points_mm)
-    refined = scores_3d(reconstruct(projections, masks, preset="refined", centerlines=False).vessel_points_mm,
+    refined = scores_3d(reconstruct(projections, masks, preset="refined", centerlines=False, tree=False).vessel_points_mm,
                         case.surface_points_mm)
     assert refined.dice3d >= plain.dice3d - 1.0
 
@@ -155,7 +155,7 @@ def test_a_vessel_sampled_with_gaps_is_one_part():
     cols = np.flatnonzero(masks[0].any(axis=0))
     for c in range(cols.min() + 6, cols.max(), 12):
         masks[0][:, c:c + 3] = False
-    carved = reconstruct(projections, masks, resolution=256, centerlines=False)
+    carved = reconstruct(projections, masks, resolution=256, centerlines=False, tree=False)
     points = carved.vessel_points_mm
     touching, _ = refine_hull(points, carved.lattice, projections, masks, dataclasses.replace(REFINED, bridge_cells=0))
     bridged, info = refine_hull(points, carved.lattice, projections, masks, REFINED)
@@ -173,7 +173,7 @@ def test_tube_axis_of_a_straight_tube_lies_on_its_axis_with_its_radius():
     from angiohull.reconstruction.refine import refine_hull, tube_axis
 
     start, end, radius, projections, masks = _rod()
-    carved = reconstruct(projections, masks, resolution=REFINED.resolution, centerlines=False)
+    carved = reconstruct(projections, masks, resolution=REFINED.resolution, centerlines=False, tree=False)
     lattice: Lattice = carved.lattice
     axis, radii = tube_axis(carved.vessel_points_mm, lattice, projections, masks)
     inner = np.abs(axis[:, 0]) < 25

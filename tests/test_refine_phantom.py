@@ -59,7 +59,7 @@ def _three_tubes():
     carms = [CArmGeometry(a, b, 1200.0, 800.0, (0.35, 0.35), (512, 512)) for a, b in ((0, 0), (90, 0), (0, 90))]
     projections = [c.projection() for c in carms]
     masks = [clean_mask(phantom.silhouette(p)) for p in projections]
-    carved = reconstruct(projections, masks, resolution=REFINED.resolution, centerlines=False)
+    carved = reconstruct(projections, masks, resolution=REFINED.resolution, centerlines=False, tree=False)
     return carved, projections, masks
 
 
@@ -97,7 +97,7 @@ def test_the_phantom_tube_where_three_branches_cross_in_projection_is_removed_an
 
 def test_the_refined_preset_runs_the_explanation_step():
     carved, projections, masks = _three_tubes()
-    refined = reconstruct(projections, masks, preset="refined", centerlines=False).vessel_points_mm
+    refined = reconstruct(projections, masks, preset="refined", centerlines=False, tree=False).vessel_points_mm
     expected, _ = refine_hull(carved.vessel_points_mm, carved.lattice, projections, masks, REFINED)
     np.testing.assert_array_equal(refined, expected)
 

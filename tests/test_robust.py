@@ -40,10 +40,10 @@ def test_k_of_n_engines_equal_the_brute_force_oracle(seed, n_views, need):
 
 def test_all_views_is_the_papers_rule_and_more_tolerance_keeps_more():
     projections, masks = random_case(7, n_views=4)
-    paper = reconstruct(projections, masks, resolution=30, centerlines=False, allow_empty=True)
-    same = reconstruct(projections, masks, resolution=30, centerlines=False, allow_empty=True, min_views=4)
+    paper = reconstruct(projections, masks, resolution=30, centerlines=False, tree=False, allow_empty=True)
+    same = reconstruct(projections, masks, resolution=30, centerlines=False, tree=False, allow_empty=True, min_views=4)
     assert np.array_equal(paper.vessel_points_mm, same.vessel_points_mm) and same.min_views is None
-    sizes = [len(reconstruct(projections, masks, resolution=30, centerlines=False, allow_empty=True,
+    sizes = [len(reconstruct(projections, masks, resolution=30, centerlines=False, tree=False, allow_empty=True,
                              min_views=k).vessel_points_mm) for k in (4, 3, 2, 1)]
     assert sizes == sorted(sizes) and sizes[0] < sizes[-1]
 
@@ -55,17 +55,17 @@ def test_two_of_three_survives_a_missing_segment():
     projections = [v.projection for v in clean.views]
 
     def count(views, **kw):
-        return len(reconstruct(projections, [v.mask for v in views], centerlines=False, **kw).vessel_points_mm)
+        return len(reconstruct(projections, [v.mask for v in views], centerlines=False, tree=False, **kw).vessel_points_mm)
 
     assert count(broken.views) < count(clean.views)
     truth = clean.tree.phantom
     lost_paper = truth.contains(reconstruct(projections, [v.mask for v in clean.views],
-                                            centerlines=False).vessel_points_mm).sum() - \
-        truth.contains(reconstruct(projections, [v.mask for v in broken.views], centerlines=False).vessel_points_mm).sum()
-    robust = reconstruct(projections, [v.mask for v in broken.views], centerlines=False, min_views=2)
+                                            centerlines=False, tree=False).vessel_points_mm).sum() - \
+        truth.contains(reconstruct(projections, [v.mask for v in broken.views], centerlines=False, tree=False).vessel_points_mm).sum()
+    robust = reconstruct(projections, [v.mask for v in broken.views], centerlines=False, tree=False, min_views=2)
     assert lost_paper > 0
     assert truth.contains(robust.vessel_points_mm).sum() >= truth.contains(
-        reconstruct(projections, [v.mask for v in clean.views], centerlines=False).vessel_points_mm).sum()
+        reconstruct(projections, [v.mask for v in clean.views], centerlines=False, tree=False).vessel_points_mm).sum()
 
 
 @pytest.mark.parametrize("value", [0, 4, 2.5, "two"])
@@ -81,4 +81,4 @@ def test_empty_k_of_n_hull_says_so():
     for m, (r, c) in zip(masks, [(0, 0), (95, 79), (0, 79)]):
         m[r, c] = True
     with pytest.raises(EmptyHullError, match="2 of the 3 views"):
-        reconstruct(projections, masks, resolution=10, min_views=2, centerlines=False)
+        reconstruct(projections, masks, resolution=10, min_views=2, centerlines=False, tree=False)

@@ -102,7 +102,7 @@ def test_reconstruction_of_a_generated_case_contains_the_tree():
     # lattice cell survives (K=100 lattice, threshold 1 px), and Dice3D is in the paper's range.
     case = make_case(SynthOptions(seed=11, views="clinical"))
     result = reconstruct([v.projection for v in case.views], [v.mask for v in case.views], engine="octree",
-                         centerlines=False)
+                         centerlines=False, tree=False)
     scores = scores_3d(result.vessel_points_mm, case.surface_points_mm)
     assert 60.0 < scores.dice3d < 95.0
     assert scores.chamfer_mm < 2.0

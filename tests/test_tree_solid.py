@@ -7,8 +7,8 @@ import trimesh
 from angiohull.errors import TreeError
 from angiohull.synthetic import Tube, TubePhantom
 from angiohull.tree import Branch, VesselTree
-from angiohull.tree.solid import (contains, default_step_mm, lumen_labels, signed_distance_mm, surface_and_labels,
-                                  surface_mesh)
+from angiohull.tree.solid import (_distance_grid, contains, default_step_mm, lumen_labels, signed_distance_mm,
+                                  surface_and_labels, surface_mesh)
 
 
 def _line(start, end, count):
@@ -96,3 +96,21 @@ def test_grid_step_follows_the_smallest_radius_and_refuses_huge_grids():
         surface_mesh(_straight(radius=1.0, length=200.0), step_mm=0.01)
     with pytest.raises(TreeError, match="step_mm must be a positive"):
         surface_mesh(_straight(), step_mm=-1.0)
+
+
+def test_the_blocked_grid_gives_the_whole_grids_mesh_and_labels():
+    # a tree longer than several blocks of 64 cells at this step: vertices on shared block planes merged
+    tree = VesselTree((Branch(_line((0, 0, 0), (60, 10, 5), 121), 1.2),
+                       Branch(_line((30, 5, 2.5), (35, 30, -10), 61), 0.8, parent=0, parent_point=60)))
+    step = 0.25
+    mesh, lumen = surface_and_labels(tree, step_mm=step)
+    distance, origin, owner = _distance_grid(tree, step)
+    owner[distance > 0] = 0
+    np.testing.assert_array_equal(lumen.labels, owner)
+    from skimage.measure import marching_cubes
+
+    vertices, faces, _, _ = marching_cubes(distance, 0.0, mask=distance < np.float32(2 * step * 0.999),
+                                           allow_degenerate=False)
+    assert len(mesh.faces) == len(faces) and len(mesh.vertices_mm) == len(vertices)
+    np.testing.assert_allclose(np.sort(mesh.vertices_mm, axis=0), np.sort(origin + step * vertices, axis=0), atol=1e-5)
+    _checked(mesh)

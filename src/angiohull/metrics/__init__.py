@@ -13,23 +13,6 @@ from .paper import (PAPER_DETECTOR_SPACING_MM, PAPER_VOXEL_MM, Scores3D, chamfer
                     dice2d_plain, dice3d, iou3d, paper_dilation_side_px, scores_3d, voxel_centres_mm, voxelise)
 from .tree import TreeScores, centerline_samples, distance_to_centerline, overlap_key, tree_scores
 
-__all__ = [
-    "PAPER_VOXEL_MM",
-    "PAPER_DETECTOR_SPACING_MM",
-    "voxelise",
-    "voxel_centres_mm",
-    "dice3d",
-    "iou3d",
-    "chamfer_mm",
-    "dice2d",
-    "paper_dilation_side_px",
-    "dice2d_paper",
-    "dice2d_plain",
-    "Scores3D",
-    "scores_3d",
-    "TreeScores",
-    "tree_scores",
-    "centerline_samples",
-    "distance_to_centerline",
-    "overlap_key",
-]
+from . import paper as _paper
+
+__all__ = [*_paper.__all__, "TreeScores", "tree_scores", "centerline_samples", "distance_to_centerline", "overlap_key"]

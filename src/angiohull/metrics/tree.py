@@ -105,7 +105,6 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple, Sequence
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from .. import _validation as _v
@@ -539,6 +538,8 @@ def match_bifurcations(true_points: np.ndarray, rec_points: np.ndarray, limit: f
     distance = np.sqrt(((true_points[:, None, :] - rec_points[None, :, :]) ** 2).sum(axis=2))
     # a pair beyond the limit costs more than any set of pairs within it: the fewest such pairs first
     far = limit * (min(distance.shape) + 1) + 1.0
+    from scipy.optimize import linear_sum_assignment  # only here: scipy.optimize is slow to import
+
     rows, cols = linear_sum_assignment(np.where(distance <= limit, distance, far))
     chosen = distance[rows, cols]
     chosen = chosen[chosen <= limit]

@@ -15,7 +15,8 @@ step is half the smallest radius (the 5th percentile of the point radii), at mos
 tube then loses about 1 % of its volume), and no finer than the bounding box allows in
 :data:`MAX_GRID_VOXELS` voxels.
 :func:`lumen_labels` labels the grid's voxel centres inside the solid with the branch (index + 1)
-of the capsule that contains them most deeply (0 outside).
+of the capsule that contains them most deeply (0 outside). Both work block by block (64 cells a
+side, blocks that no capsule reaches skipped), with the same result as the whole grid at once.
 """
 
 from __future__ import annotations
@@ -153,69 +154,144 @@ def default_step_mm(tree: VesselTree) -> float:
     return max(step, coarsest)
 
 
-def _distance_grid(tree: VesselTree, step_mm: float,
-                   with_owner: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Signed distance on a grid covering the solid with a margin (exact within ``_BAND_STEPS``
-    steps of the surface and inside; ``_BAND_STEPS`` steps elsewhere), the grid origin (centre
-    of voxel 0) and, ``with_owner``, one plus the branch of the capsule giving each voxel's distance
-    (0 where none is within the band)."""
-    a, b, radius, branch = tree.capsules()
-    low, high = tree.bounding_box_mm()
-    band = _BAND_STEPS * step_mm
-    origin = low - 2 * step_mm
-    shape = np.floor((high + 2 * step_mm - origin) / step_mm).astype(np.int64) + 1
-    if int(np.prod(shape)) > 4 * MAX_GRID_VOXELS:
-        raise TreeError(f"a grid step of {step_mm:.3g} mm needs {int(np.prod(shape)):,} voxels for this tree "
-                        f"({(high - low).round(1).tolist()} mm); use a larger step")
-    distance = np.full(tuple(shape), np.float32(band), dtype=np.float32)
-    owner = np.zeros(tuple(shape), dtype=np.uint16) if with_owner else None
-    lo = np.floor((np.minimum(a, b) - radius[:, None] - band - origin) / step_mm).astype(np.int64)
-    hi = np.ceil((np.maximum(a, b) + radius[:, None] + band - origin) / step_mm).astype(np.int64)
-    lo, hi = np.maximum(lo, 0), np.minimum(hi, shape - 1)
-    axes = [(origin[k] + step_mm * np.arange(shape[k])).astype(np.float32) for k in range(3)]
-    a32, ab32 = a.astype(np.float32), (b - a).astype(np.float32)
-    for i in range(len(a)):
-        (x0, y0, z0), (x1, y1, z1) = lo[i], hi[i] + 1
-        px = axes[0][x0:x1, None, None] - a32[i, 0]
-        py = axes[1][None, y0:y1, None] - a32[i, 1]
-        pz = axes[2][None, None, z0:z1] - a32[i, 2]
-        ab = ab32[i]
+_BLOCK = 64  # cells per block edge of the blocked grid (measured: 32 is a quarter slower, 24 half)
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """The grid of a tree's solid and the voxel box of every capsule on it."""
+
+    a: np.ndarray  # (S, 3) capsule starts, mm
+    b: np.ndarray  # (S, 3) capsule ends, mm
+    radius: np.ndarray  # (S,)
+    branch: np.ndarray  # (S,) owning branch
+    origin: np.ndarray  # (3,) centre of voxel 0, mm
+    shape: np.ndarray  # (3,) samples per axis
+    step: float
+    band: float  # the distance is exact within this of the surface (and inside)
+    lo: np.ndarray  # (S, 3) first voxel of each capsule's box
+    hi: np.ndarray  # (S, 3) last voxel of it (inclusive)
+    axes: tuple[np.ndarray, np.ndarray, np.ndarray]  # voxel centre coordinates per axis, float32
+
+    @classmethod
+    def of(cls, tree: VesselTree, step_mm: float) -> "_Grid":
+        a, b, radius, branch = tree.capsules()
+        low, high = tree.bounding_box_mm()
+        band = _BAND_STEPS * step_mm
+        origin = low - 2 * step_mm
+        shape = np.floor((high + 2 * step_mm - origin) / step_mm).astype(np.int64) + 1
+        if int(np.prod(shape)) > 4 * MAX_GRID_VOXELS:
+            raise TreeError(f"a grid step of {step_mm:.3g} mm needs {int(np.prod(shape)):,} voxels for this tree "
+                            f"({(high - low).round(1).tolist()} mm); use a larger step")
+        lo = np.floor((np.minimum(a, b) - radius[:, None] - band - origin) / step_mm).astype(np.int64)
+        hi = np.ceil((np.maximum(a, b) + radius[:, None] + band - origin) / step_mm).astype(np.int64)
+        axes = tuple((origin[k] + step_mm * np.arange(shape[k])).astype(np.float32) for k in range(3))
+        return cls(a, b, radius, branch, origin, shape, step_mm, band, np.maximum(lo, 0), np.minimum(hi, shape - 1), axes)
+
+    def capsule(self, i: int, start: np.ndarray, stop: np.ndarray) -> np.ndarray:
+        """Signed distance to capsule ``i`` at the voxels ``start <= index < stop`` (float32)."""
+        a = self.a[i].astype(np.float32)
+        ab = (self.b[i] - self.a[i]).astype(np.float32)
+        px = self.axes[0][start[0]:stop[0], None, None] - a[0]
+        py = self.axes[1][None, start[1]:stop[1], None] - a[1]
+        pz = self.axes[2][None, None, start[2]:stop[2]] - a[2]
         length_sq = float(ab @ ab)
         if length_sq > 0:
             t = np.clip((px * ab[0] + py * ab[1] + pz * ab[2]) * np.float32(1.0 / length_sq), 0.0, 1.0)
             px, py, pz = px - t * ab[0], py - t * ab[1], pz - t * ab[2]
-        d = np.sqrt(px * px + py * py + pz * pz) - np.float32(radius[i])
-        block = distance[x0:x1, y0:y1, z0:z1]
-        if owner is None:
-            np.minimum(block, d, out=block)
-        else:
-            closer = d < block
-            np.copyto(block, d, where=closer)
-            np.copyto(owner[x0:x1, y0:y1, z0:z1], np.uint16(branch[i] + 1), where=closer)
-    return distance, origin, owner
+        return np.sqrt(px * px + py * py + pz * pz) - np.float32(self.radius[i])
+
+    def fill(self, start: np.ndarray, stop: np.ndarray, capsules) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distance (``band`` where no capsule is within it) and 1 + owning branch (0 there)
+        on the voxels ``start <= index < stop``, from the given capsules (in order: of equally
+        distant capsules the first owns the voxel)."""
+        distance = np.full(tuple(stop - start), np.float32(self.band), dtype=np.float32)
+        owner = np.zeros(tuple(stop - start), dtype=np.uint16)
+        for i in capsules:
+            first = np.maximum(self.lo[i], start)
+            last = np.minimum(self.hi[i] + 1, stop)
+            if np.any(last <= first):
+                continue
+            d = self.capsule(int(i), first, last)
+            window = tuple(slice(f - s, l - s) for f, l, s in zip(first, last, start))
+            closer = d < distance[window]
+            np.copyto(distance[window], d, where=closer)
+            np.copyto(owner[window], np.uint16(self.branch[i] + 1), where=closer)
+        return distance, owner
+
+
+def _distance_grid(tree: VesselTree, step_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The whole grid at once (the reference the blocked grid is tested against): signed distance,
+    grid origin (centre of voxel 0), 1 + owning branch (0 outside the band)."""
+    grid = _Grid.of(tree, step_mm)
+    distance, owner = grid.fill(np.zeros(3, dtype=np.int64), grid.shape, range(len(grid.a)))
+    return distance, grid.origin, owner
+
+
+def _blocked(tree: VesselTree, step_mm: float, *, mesh: bool, labels: bool) -> tuple[SurfaceMesh | None, LumenVolume | None]:
+    """Mesh and labels block by block: blocks of ``_BLOCK`` cells (sharing their last sample plane
+    with the next block) that no capsule's box reaches are never computed, and each block's cubes
+    are marched in that block only, so that the result equals the whole grid's; vertices on the
+    planes two blocks share come out identical from both and are merged."""
+    from skimage.measure import marching_cubes
+
+    grid = _Grid.of(tree, step_mm)
+    size = _BLOCK
+    blocks = np.maximum((grid.shape - 1 + size - 1) // size, 1)
+    first = np.maximum(-(-(grid.lo - size) // size), 0)  # blocks whose samples [k B, k B + B] meet the box
+    last = np.minimum(grid.hi // size, blocks - 1)
+    members: dict[tuple[int, int, int], list[int]] = {}
+    for i in range(len(grid.a)):
+        for bx in range(first[i, 0], last[i, 0] + 1):
+            for by in range(first[i, 1], last[i, 1] + 1):
+                for bz in range(first[i, 2], last[i, 2] + 1):
+                    members.setdefault((bx, by, bz), []).append(i)
+    label_volume = np.zeros(tuple(grid.shape), dtype=np.uint16) if labels else None
+    vertices, faces, count = [], [], 0
+    for key in sorted(members):
+        start = np.array(key) * size
+        stop = np.minimum(start + size + 1, grid.shape)
+        distance, owner = grid.fill(start, stop, members[key])
+        if label_volume is not None:
+            window = label_volume[tuple(slice(a, b) for a, b in zip(start, stop))]
+            np.copyto(window, owner, where=distance <= 0)
+        if mesh and np.any(np.asarray(distance.shape) >= 2) and distance.min() <= 0 < distance.max():
+            try:
+                v, f, _, _ = marching_cubes(distance, 0.0, mask=distance < np.float32(grid.band * 0.999),
+                                            allow_degenerate=False)
+            except RuntimeError:  # no cube of this block holds the surface
+                continue
+            vertices.append(v.astype(np.float64) + start)
+            faces.append(f.astype(np.int64) + count)
+            count += len(v)
+    surface = None
+    if mesh:
+        if not vertices:
+            raise TreeError("the tree's solid has no surface on its grid (a step larger than the tree?)")
+        surface = _welded(np.concatenate(vertices), np.concatenate(faces), grid, size)
+    lumen = LumenVolume(label_volume, grid.origin, step_mm) if labels else None
+    return surface, lumen
+
+
+def _welded(vertices: np.ndarray, faces: np.ndarray, grid: _Grid, size: int) -> SurfaceMesh:
+    """Merge the copies of the vertices on shared block planes (exactly equal coordinates) and
+    orient the faces outward."""
+    on_plane = np.any((vertices % size == 0) & (vertices > 0), axis=1)
+    index = np.arange(len(vertices))
+    candidates = np.flatnonzero(on_plane)
+    if len(candidates):
+        _, first, inverse = np.unique(vertices[candidates], axis=0, return_index=True, return_inverse=True)
+        index[candidates] = candidates[first][inverse.ravel()]
+    used, compact = np.unique(index, return_inverse=True)
+    faces = compact[index[faces]].reshape(-1, 3)
+    mesh = SurfaceMesh(grid.origin + grid.step * vertices[used], faces, grid.step)
+    if mesh.volume_mm3 < 0:  # faces wound inward: turn them
+        mesh = SurfaceMesh(mesh.vertices_mm, mesh.faces[:, ::-1].copy(), grid.step)
+    return mesh
 
 
 def _step(tree: VesselTree, step_mm: float | None) -> float:
     return default_step_mm(tree) if step_mm is None else _v.positive_finite(step_mm, "step_mm", error=TreeError)
-
-
-def _mesh(distance: np.ndarray, origin: np.ndarray, step: float) -> SurfaceMesh:
-    from skimage.measure import marching_cubes
-
-    # cubes away from the surface hold no triangle: only the band is marched
-    band = distance < np.float32(_BAND_STEPS * step * 0.999)
-    vertices, faces, _, _ = marching_cubes(distance, 0.0, spacing=(step, step, step), mask=band,
-                                           allow_degenerate=False)
-    mesh = SurfaceMesh(vertices.astype(np.float64) + origin, faces.astype(np.int64), step)
-    if mesh.volume_mm3 < 0:  # faces wound inward: turn them
-        mesh = SurfaceMesh(mesh.vertices_mm, mesh.faces[:, ::-1].copy(), step)
-    return mesh
-
-
-def _labels(distance: np.ndarray, owner: np.ndarray, origin: np.ndarray, step: float) -> LumenVolume:
-    """The label volume from the grid's owners (``owner`` is reused): 0 outside the solid."""
-    owner[distance > 0] = 0
-    return LumenVolume(owner, origin, step)
 
 
 def surface_mesh(tree: VesselTree, *, step_mm: float | None = None) -> SurfaceMesh:
@@ -231,22 +307,16 @@ def surface_mesh(tree: VesselTree, *, step_mm: float | None = None) -> SurfaceMe
     -------
     SurfaceMesh
     """
-    step = _step(tree, step_mm)
-    distance, origin, _ = _distance_grid(tree, step)
-    return _mesh(distance, origin, step)
+    return _blocked(tree, _step(tree, step_mm), mesh=True, labels=False)[0]
 
 
 def lumen_labels(tree: VesselTree, *, spacing_mm: float | None = None) -> LumenVolume:
     """The lumen as a label volume on a grid of edge ``spacing_mm`` (default :func:`default_step_mm`):
     0 outside the solid, ``b + 1`` at voxel centres inside it, ``b`` the branch whose capsule holds
     the centre most deeply."""
-    step = _step(tree, spacing_mm)
-    distance, origin, owner = _distance_grid(tree, step, with_owner=True)
-    return _labels(distance, owner, origin, step)
+    return _blocked(tree, _step(tree, spacing_mm), mesh=False, labels=True)[1]
 
 
 def surface_and_labels(tree: VesselTree, *, step_mm: float | None = None) -> tuple[SurfaceMesh, LumenVolume]:
     """:func:`surface_mesh` and :func:`lumen_labels` on one grid (the distance computed once)."""
-    step = _step(tree, step_mm)
-    distance, origin, owner = _distance_grid(tree, step, with_owner=True)
-    return _mesh(distance, origin, step), _labels(distance, owner, origin, step)
+    return _blocked(tree, _step(tree, step_mm), mesh=True, labels=True)

@@ -94,8 +94,11 @@ def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5, ball_voxels:
 
     def cover(path: np.ndarray) -> None:
         """Mark the voxels within reach of a voxel of ``path`` (nearest path voxel decides)."""
+        largest = float(reach[path].max())
+        low, high = voxels[path].min(axis=0) - largest, voxels[path].max(axis=0) + largest
         todo = np.flatnonzero(~covered)
-        gap, nearest = cKDTree(voxels[path]).query(voxels[todo], distance_upper_bound=float(reach[path].max()))
+        todo = todo[np.all((voxels[todo] >= low) & (voxels[todo] <= high), axis=1)]  # the path's box only
+        gap, nearest = cKDTree(voxels[path]).query(voxels[todo], distance_upper_bound=largest)
         hit = np.isfinite(gap)
         hit[hit] = gap[hit] <= reach[path][nearest[hit]]
         covered[todo[hit]] = True
