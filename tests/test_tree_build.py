@@ -161,3 +161,15 @@ def test_teasar_paths_reach_every_end_of_a_thick_y():
         assert np.linalg.norm(voxels - end, axis=1).min() <= 3.0
     distance, *_ = distance_to_centerline(voxels.astype(float), truth)
     assert np.median(distance) <= 1.0 and len(dbf) == len(voxels) and dbf.max() >= 2.5
+
+
+def test_two_views_keep_every_branch_and_more_views_drop_what_no_view_sees():
+    truth = _y()
+    phantom = TubePhantom(tuple(Tube(b.points_mm, b.radius_mm) for b in truth.branches), "truth")
+    projections = _views()
+    masks = [phantom.silhouette(p) for p in projections]
+    two = reconstruct(projections[:2], masks[:2], preset="refined", centerlines=False)
+    assert two.tree is not None and two.tree_build.unseen_leaves_removed == 0
+    three = reconstruct(projections, masks, preset="refined", centerlines=False)
+    # what three views keep is what they see: no leaf branch of the tree is unseen over most of it
+    assert three.tree_build.unseen_leaves_removed >= 0 and three.tree.n_branches <= two.tree.n_branches

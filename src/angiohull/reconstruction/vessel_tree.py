@@ -38,9 +38,11 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    The point moves by the least-squares step that puts its projection on the middles of the
    seeing views' runs (along each view's normal; the step along the 3D tangent is held at zero),
    at most one radius per iteration, then the branches are smoothed again (``smoothing_mm / 2``).
-   Before the last iteration, leaf branches that no view sees over ``max_unseen_share`` of their
-   points are removed, repeatedly (spurs, stubs at a junction, phantom pieces the hull kept where
-   vessels cross in every view).
+   Before the last iteration, with three views or more, leaf branches that no view sees over
+   ``max_unseen_share`` of their points are removed, repeatedly (spurs, stubs at a junction,
+   phantom pieces the hull kept where vessels cross in every view). With two views a phantom and
+   the true branch it mirrors overlap each other in both views, nothing tells them apart, and
+   nothing is removed.
 4. **Ends.** The skeleton may stop short of a vessel's end or overshoot it where the hull ends in
    a point. Each tip of the tree (the root's start and every branch end with no child there) moves
    along its tangent to the farthest place, within ``end_reach_radii`` radii, where the end cap
@@ -605,7 +607,9 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     seen = np.zeros((len(projections), len(arrays.points)), dtype=bool)
     removed = 0
     for iteration in range(settings.iterations):
-        if iteration == settings.iterations - 1:  # the last fit without the branches no view sees
+        if iteration == settings.iterations - 1 and len(projections) >= 3:
+            # the last fit without the branches no view sees; with two views a phantom and the true
+            # branch it mirrors overlap each other in both, and nothing tells them apart
             arrays, removed = arrays.without_unseen_leaves(seen, settings.max_unseen_share)
         tangents = arrays.tangents()
         sections = _sections(arrays.points, tangents, arrays.radius, projections, images, settings.profile_step_px)
