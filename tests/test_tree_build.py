@@ -163,13 +163,13 @@ def test_teasar_paths_reach_every_end_of_a_thick_y():
     assert np.median(distance) <= 1.0 and len(dbf) == len(voxels) and dbf.max() >= 2.5
 
 
-def test_two_views_keep_every_branch_and_more_views_drop_what_no_view_sees():
+def test_two_views_remove_no_branch_for_want_of_a_view_that_sees_it():
+    # with two views a branch and the phantom it mirrors overlap in both views: the rule that removes
+    # unseen leaf branches would take true branches with them, so it does not run
     truth = _y()
     phantom = TubePhantom(tuple(Tube(b.points_mm, b.radius_mm) for b in truth.branches), "truth")
-    projections = _views()
-    masks = [phantom.silhouette(p) for p in projections]
-    two = reconstruct(projections[:2], masks[:2], preset="refined", centerlines=False)
-    assert two.tree is not None and two.tree_build.unseen_leaves_removed == 0
-    three = reconstruct(projections, masks, preset="refined", centerlines=False)
-    # what three views keep is what they see: no leaf branch of the tree is unseen over most of it
-    assert three.tree_build.unseen_leaves_removed >= 0 and three.tree.n_branches <= two.tree.n_branches
+    projections = _views()[:2]
+    result = reconstruct(projections, [phantom.silhouette(p) for p in projections], preset="refined",
+                         centerlines=False)
+    assert result.tree is not None and result.tree_build.unseen_leaves_removed == 0
+    assert result.tree.n_branches > 2  # the two-view hull's phantom branches stay, with the true ones
