@@ -9,6 +9,7 @@ from scipy.spatial import cKDTree
 
 from angiohull.errors import TreeError
 from angiohull.metrics import TreeScores, centerline_samples, distance_to_centerline, overlap_key, tree_scores
+from angiohull.metrics.tree import undefined_scores
 from angiohull.tree.model import Branch, VesselTree
 from angiohull.tree.solid import contains
 
@@ -422,3 +423,13 @@ def test_bad_trees_and_points_are_rejected():
         distance_to_centerline(np.zeros((3, 3)), [T20])
     empty = distance_to_centerline(np.zeros((0, 3)), T20)
     assert [a.shape for a in empty] == [(0,), (0, 3), (0,), (0,)]
+
+
+def test_undefined_scores_have_the_keys_of_a_score_and_the_truths_counts():
+    t = random_tree(np.random.default_rng(5), n_branches=4, length=(12, 20))
+    undefined = undefined_scores(t)
+    scored = tree_scores(t, t).as_dict()
+    assert list(undefined) == list(scored)
+    assert undefined["branches_true"] == scored["branches_true"]
+    assert undefined["bifurcations_true"] == scored["bifurcations_true"]
+    assert math.isnan(undefined["centerline_mean_mm"]) and undefined["branches_found"] == 0

@@ -77,6 +77,10 @@ def test_tree_scores_without_a_true_tree_or_without_a_tree_are_an_error(syntheti
         tree_evaluation_scores(replace(study, ground_truth_tree=None), result)
     with pytest.raises(StudyError, match="without its vessel tree"):
         tree_evaluation_scores(study, reconstruct_study(study, ReconstructOptions(resolution=60, tree=False)))
+    # a reconstruction that asked for a tree and got none: undefined scores, the truth's counts, the reason
+    failed = tree_evaluation_scores(study, replace(result, tree=None, tree_build=None, tree_error="the hull is empty"))
+    assert failed["tree_error"] == "the hull is empty" and np.isnan(failed["centerline_mean_mm"])
+    assert failed["bifurcations_true"] == 3 and failed["branches_found"] == 0
 
 
 def test_a_bad_true_tree_in_study_yaml_names_the_field(synthetic_study, tmp_path):

@@ -137,7 +137,7 @@ def tree_evaluation_scores(study: Study, result: ReconstructionResult) -> dict[s
     StudyError
         If the study has no true tree, or the reconstruction was run without one (``tree=False``).
     """
-    from .metrics.tree import tree_scores
+    from .metrics.tree import tree_scores, undefined_scores
 
     where = study.root if study.root is not None else "study"
     if study.ground_truth_tree is None:
@@ -149,9 +149,7 @@ def tree_evaluation_scores(study: Study, result: ReconstructionResult) -> dict[s
     if result.tree is not None:
         scores: dict[str, Any] = tree_scores(result.tree, study.ground_truth_tree).as_dict()
     else:  # no tree could be built: every score of the reconstruction undefined
-        template = tree_scores(study.ground_truth_tree, study.ground_truth_tree).as_dict()
-        scores = {key: (value if key in ("branches_true", "bifurcations_true") else
-                        (0 if isinstance(value, int) else math.nan)) for key, value in template.items()}
+        scores = undefined_scores(study.ground_truth_tree)
         scores["tree_error"] = result.tree_error
     scores["tree_s"] = result.timings_s.get("tree", math.nan)
     return scores

@@ -111,8 +111,8 @@ from .. import _validation as _v
 from ..errors import TreeError
 from ..tree.model import VesselTree
 
-__all__ = ["TreeScores", "tree_scores", "centerline_samples", "distance_to_centerline", "overlap_key", "match_bifurcations",
-           "MAX_SAMPLES"]
+__all__ = ["TreeScores", "tree_scores", "undefined_scores", "centerline_samples", "distance_to_centerline",
+           "overlap_key", "match_bifurcations", "MAX_SAMPLES"]
 
 MAX_SAMPLES = 20_000_000
 """Most centerline samples one tree may get (a larger count asks for a larger step)."""
@@ -506,6 +506,29 @@ class TreeScores:
             "bifurcation_error_mm": float(self.bifurcation_error_mm),
         })
         return out
+
+
+def undefined_scores(truth: VesselTree, *, overlap_mm: Sequence[float] = (0.5, 1.0, 2.0),
+                     min_branch_mm: float = 10.0) -> dict[str, float | int]:
+    """The keys of :meth:`TreeScores.as_dict` for a reconstruction that has no tree: the counts of
+    the true tree (``branches_true``, ``bifurcations_true``), 0 for the other counts, nan for every
+    score."""
+    _check_tree(truth, "truth")
+    out: dict[str, float | int] = {}
+    for field_name in ("centerline_mean_mm", "centerline_mean_true_to_rec_mm", "centerline_mean_rec_to_true_mm",
+                       "centerline_p95_mm", "centerline_hausdorff_mm"):
+        out[field_name] = math.nan
+    thresholds = _thresholds(overlap_mm)
+    out.update({overlap_key(d): math.nan for d in thresholds})
+    out.update({overlap_key(d) + "_reverse": math.nan for d in thresholds})
+    out.update({key: math.nan for key in ("cldice_sensitivity", "cldice_precision", "cldice", "radius_mae_mm",
+                                          "radius_rmse_mm", "radius_bias_mm", "radius_matched_share",
+                                          "branch_recall")})
+    out.update({"branches_true": int(sum(b.length_mm >= min_branch_mm for b in truth.branches)), "branches_found": 0,
+                "branch_precision": math.nan, "branches_reconstructed": 0,
+                "bifurcations_true": len(truth.bifurcations), "bifurcations_reconstructed": 0,
+                "bifurcations_matched": 0, "bifurcation_error_mm": math.nan})
+    return out
 
 
 def _radius_errors(margin: np.ndarray, error: np.ndarray, samples: _Samples) -> tuple[float, float, float, float]:

@@ -21,7 +21,7 @@ from .engines import ENGINES, CarveOutcome
 from . import hierarchical  # noqa: F401  (registers the lookup and octree engines)
 from .gpu import CUDA_ENGINES, carve_cuda
 from .refine import REFINED, clean_mask, refine_hull
-from .vessel_tree import TREE_SETTINGS, TreeBuild, hull_tree
+from .vessel_tree import TreeBuild, hull_tree
 
 __all__ = [
     "reconstruct",
