@@ -156,7 +156,7 @@ class _Arrays:
             out[self.span(b)] = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
         return out
 
-    def smooth(self, sigma_mm: float, step_mm: float, fixed: np.ndarray | None = None) -> None:
+    def smooth(self, sigma_mm: float, step_mm: float) -> None:
         """Gaussian smoothing of the positions along each branch (ends held), children re-attached."""
         if sigma_mm <= 0:
             return
@@ -167,9 +167,6 @@ class _Arrays:
                 continue
             smooth = ndi.gaussian_filter1d(p, sigma_mm / step_mm, axis=0, mode="nearest")
             smooth[0], smooth[-1] = p[0], p[-1]
-            if fixed is not None:
-                hold = fixed[s]
-                smooth[hold] = p[hold]
             self.points[s] = smooth
             self.reattach(b)
 
