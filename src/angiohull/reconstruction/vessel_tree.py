@@ -69,7 +69,7 @@ from ..geometry import Projection
 from ..tree import Branch, VesselTree
 from ..tree.skeleton import SkeletonInfo, SkeletonSettings, tree_from_skeleton
 from ..tree.teasar import teasar_skeleton
-from ..tree.voxels import neighbour_edges
+from ..tree.voxels import dilated, neighbour_edges
 from .cube import Lattice
 
 __all__ = ["TreeSettings", "TREE_SETTINGS", "TreeBuild", "hull_tree"]
@@ -466,13 +466,8 @@ class _SupportBridge:
     thin vessels), through its cells grown by one. Each graph is built on first use."""
 
     def __init__(self, support_mm: np.ndarray, lattice: Lattice, limit_mm: float):
-        self._lattice, self._limit = lattice, limit_mm
-        h = lattice.spacing_mm
-        ijk = np.round((support_mm + lattice.half_edge_mm) / h).astype(np.int64)
-        self._low = ijk.min(axis=0) - 2
-        local = ijk - self._low
-        self._occupied = np.zeros(tuple(local.max(axis=0) + 3), dtype=bool)
-        self._occupied[tuple(local.T)] = True
+        self._limit = limit_mm
+        self._occupied, self._origin, self._h = _occupancy(support_mm, lattice, lattice.spacing_mm)
         self._graphs: dict[bool, tuple] = {}
 
     def _graph(self, grown: bool) -> tuple:
@@ -480,18 +475,16 @@ class _SupportBridge:
         if grown not in self._graphs:
             import scipy.sparse as sparse
 
-            h = self._lattice.spacing_mm
-            voxels = np.argwhere(_dilated(self._occupied, 1) if grown else self._occupied)
+            voxels = np.argwhere(dilated(self._occupied, 1) if grown else self._occupied)
             index = np.full(self._occupied.shape, -1, dtype=np.int64)
             index[tuple(voxels.T)] = np.arange(len(voxels))
             heads, tails, lengths = neighbour_edges(voxels, self._occupied.shape)
-            graph = sparse.coo_matrix((h * lengths, (heads, tails)), shape=(len(voxels), len(voxels))).tocsr()
-            self._graphs[grown] = (index, (voxels + self._low) * h - self._lattice.half_edge_mm, graph)
+            graph = sparse.coo_matrix((self._h * lengths, (heads, tails)), shape=(len(voxels), len(voxels))).tocsr()
+            self._graphs[grown] = (index, self._origin + self._h * voxels, graph)
         return self._graphs[grown]
 
     def _lookup(self, index: np.ndarray, points_mm: np.ndarray) -> np.ndarray:
-        h = self._lattice.spacing_mm
-        local = np.round((points_mm + self._lattice.half_edge_mm) / h).astype(np.int64) - self._low
+        local = np.round((points_mm - self._origin) / self._h).astype(np.int64)
         ok = np.all((local >= 0) & (local < np.array(index.shape)), axis=1)
         found = np.full(len(points_mm), -1, dtype=np.int64)
         found[ok] = index[tuple(local[ok].T)]
@@ -518,22 +511,14 @@ class _SupportBridge:
         return None
 
 
-def _dilated(volume: np.ndarray, cells: int) -> np.ndarray:
-    """Dilation by ``cells`` in the 26-neighbourhood (a cube of side 2 cells + 1), as three 1D passes."""
-    out = volume.view(np.uint8) if volume.dtype == bool else volume.astype(np.uint8)
-    for axis in range(3):
-        out = ndi.maximum_filter1d(out, 2 * cells + 1, axis=axis, mode="constant", cval=0)
-    return out.astype(bool)
-
-
 def _skeleton_input(volume: np.ndarray, bridge: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """The volume the centerline paths run through (``volume`` dilated by ``bridge`` cells), its
     voxels' distance from the boundary in voxels when it is cheap to give (None otherwise), and the
     distance of every voxel of it to the nearest cell outside the undilated ``volume`` (0 for the
     cells the dilation added), all in ``np.argwhere`` order of the returned volume."""
-    grown = _dilated(volume, 1)
+    grown = dilated(volume, 1)
     shell = grown & ~volume  # the empty cells next to the volume
-    paths = grown if bridge == 1 else _dilated(volume, bridge) if bridge else volume
+    paths = grown if bridge == 1 else dilated(volume, bridge) if bridge else volume
     voxels = np.argwhere(paths)
     # a k-d tree on those few cells costs a fraction of a full 3D distance transform of the box
     depth, _ = cKDTree(np.argwhere(shell)).query(voxels)

@@ -24,12 +24,11 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sparse
-from scipy import ndimage as ndi
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from ..errors import TreeError
-from .voxels import neighbour_edges
+from .voxels import dilated, neighbour_edges
 
 __all__ = ["teasar_skeleton"]
 
@@ -66,10 +65,7 @@ def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5, ball_voxels:
     # those few voxels costs a fraction of a full distance transform of the box)
     if dbf is None:
         padded = np.pad(volume, 1)
-        grown = padded.view(np.uint8)
-        for axis in range(3):
-            grown = ndi.maximum_filter1d(grown, 3, axis=axis, mode="constant", cval=0)
-        shell = np.argwhere(grown.astype(bool) & ~padded) - 1
+        shell = np.argwhere(dilated(padded) & ~padded) - 1
         dbf, _ = cKDTree(shell).query(voxels)
     else:
         dbf = np.asarray(dbf, dtype=np.float64)
