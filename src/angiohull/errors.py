@@ -19,6 +19,7 @@ __all__ = [
     "SegmentationError",
     "DicomGeometryWarning",
     "TreeWarning",
+    "QcaError",
 ]
 
 
@@ -52,6 +53,11 @@ class SegmentationError(AngiohullError):
 class TreeError(AngiohullError):
     """A vessel tree is invalid (shapes, non-finite values, radii <= 0, not a tree), or a tree
     operation got arguments it cannot use (an unwritable export path, a missing true tree)."""
+
+
+class QcaError(AngiohullError):
+    """A quantitative coronary analysis cannot do what was asked (an empty tree, a branch too short
+    for the reference fit, a segment or branch that does not exist); the message names it."""
 
 
 class OutputError(AngiohullError):

@@ -1,0 +1,29 @@
+"""Quantitative coronary analysis (3D QCA) of a vessel tree: lengths, diameters, stenoses,
+bifurcation angles, foreshortening, overlap and working views.
+
+* :mod:`.profile`: a branch's diameter profile, its healthy taper (the reference), lesions, minimal
+  lumen diameter, percent diameter stenosis, lesion length;
+* :mod:`.bifurcations`: proximal and distal angles, Medina flags;
+* :mod:`.views`: foreshortening and overlap in a view, the view map of a segment and its best
+  C-arm angles;
+* :mod:`.analysis`: :func:`analyse_tree`, everything at once, with its tables.
+
+Works on any :class:`~angiohull.tree.VesselTree` (a reconstruction's or a true one); arrays in,
+arrays out, no files (the CLI writes ``qca.json``, ``lesions.csv`` and ``branches.csv``).
+"""
+
+from __future__ import annotations
+
+from .analysis import (BRANCH_COLUMNS, LESION_COLUMNS, BranchQca, QcaResult, QcaSettings, analyse_tree,
+                       branch_profile, segment_view_map)
+from .bifurcations import BifurcationAnalysis, BifurcationSettings, analyse_bifurcations
+from .profile import DiameterProfile, Lesion, ProfileSettings, ReferenceFit, reference_fit, window_lesion_length_mm
+from .views import ViewMap, ViewMapSettings, foreshortening, view_map
+
+__all__ = [
+    "analyse_tree", "branch_profile", "segment_view_map", "QcaSettings", "QcaResult", "BranchQca",
+    "LESION_COLUMNS", "BRANCH_COLUMNS",
+    "ProfileSettings", "DiameterProfile", "ReferenceFit", "Lesion", "reference_fit", "window_lesion_length_mm",
+    "BifurcationSettings", "BifurcationAnalysis", "analyse_bifurcations",
+    "ViewMapSettings", "ViewMap", "view_map", "foreshortening",
+]

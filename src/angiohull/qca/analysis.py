@@ -1,0 +1,266 @@
+"""The whole quantitative coronary analysis of one vessel tree (:func:`analyse_tree`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..errors import QcaError, TreeError
+from ..geometry import Projection
+from ..tree import VesselTree
+from .bifurcations import BifurcationAnalysis, BifurcationSettings, analyse_bifurcations
+from .profile import DiameterProfile, Lesion, ProfileSettings, find_lesions, reference_fit
+from .views import ViewMap, ViewMapSettings, view_map, view_report
+
+__all__ = ["QcaSettings", "BranchQca", "QcaResult", "analyse_tree", "branch_profile", "LESION_COLUMNS",
+           "BRANCH_COLUMNS"]
+
+LESION_COLUMNS = ("lesion", "branch", "branch_name", "x_mm", "y_mm", "z_mm", "mld_mm", "reference_diameter_mm",
+                  "diameter_stenosis_pct", "area_stenosis_pct", "lesion_length_mm", "start_mm", "end_mm",
+                  "mld_arc_mm", "best_view", "best_view_foreshortening", "best_view_overlap")
+BRANCH_COLUMNS = ("branch", "name", "parent", "parent_point", "length_mm", "mean_diameter_mm", "min_diameter_mm",
+                  "max_diameter_mm", "reference_start_mm", "reference_end_mm", "lesions",
+                  "max_diameter_stenosis_pct", "tortuosity_curvature_rad_per_cm", "tortuosity_soam_rad_per_cm",
+                  "tortuosity_distance_metric")
+
+
+@dataclass(frozen=True)
+class QcaSettings:
+    """Every setting of the analysis (the same defaults for every tree)."""
+
+    profile: ProfileSettings = field(default_factory=ProfileSettings)
+    bifurcation: BifurcationSettings = field(default_factory=BifurcationSettings)
+    view_map: ViewMapSettings = field(default_factory=ViewMapSettings)
+    lesion_view_margin_mm: float = 5.0  # a lesion's working view covers it and this much either side
+    lesion_views: bool = True  # compute a view map for every lesion
+
+
+@dataclass(frozen=True)
+class BranchQca:
+    index: int
+    name: str
+    parent: int | None
+    parent_point: int | None
+    length_mm: float
+    mean_diameter_mm: float
+    min_diameter_mm: float
+    max_diameter_mm: float
+    profile: DiameterProfile
+    tortuosity: dict[str, float]
+
+    def row(self) -> dict[str, Any]:
+        ref = self.profile.reference
+        lesions = self.profile.lesions
+        analysed = self.profile.arc_mm[self.profile.analysed]
+        return {"branch": self.index, "name": self.name, "parent": self.parent, "parent_point": self.parent_point,
+                "length_mm": self.length_mm, "mean_diameter_mm": self.mean_diameter_mm,
+                "min_diameter_mm": self.min_diameter_mm, "max_diameter_mm": self.max_diameter_mm,
+                "reference_start_mm": None if ref is None else float(ref(analysed[0])),
+                "reference_end_mm": None if ref is None else float(ref(analysed[-1])),
+                "lesions": len(lesions),
+                "max_diameter_stenosis_pct": max((les.diameter_stenosis_pct for les in lesions), default=None),
+                "tortuosity_curvature_rad_per_cm": self.tortuosity.get("curvature_rad_per_cm"),
+                "tortuosity_soam_rad_per_cm": self.tortuosity.get("soam_rad_per_cm"),
+                "tortuosity_distance_metric": self.tortuosity.get("distance_metric")}
+
+
+@dataclass(frozen=True)
+class QcaResult:
+    tree: VesselTree
+    settings: QcaSettings
+    branches: tuple[BranchQca, ...]
+    lesions: tuple[Lesion, ...]  # every branch's, ordered by branch then arc length
+    bifurcations: tuple[BifurcationAnalysis, ...]
+    lesion_views: tuple[ViewMap, ...]  # one per lesion (empty when settings.lesion_views is False)
+    views: tuple[dict, ...]  # per acquired view: foreshortening and overlap per branch
+
+    def lesion_rows(self) -> list[dict[str, Any]]:
+        rows = []
+        views = self.lesion_views if len(self.lesion_views) == len(self.lesions) else [None] * len(self.lesions)
+        for i, (les, vm) in enumerate(zip(self.lesions, views)):
+            best = vm.to_dict() if vm is not None else {}
+            rows.append({"lesion": i, "branch": les.branch, "branch_name": self.tree.branches[les.branch].name,
+                         "x_mm": les.mld_point_mm[0], "y_mm": les.mld_point_mm[1], "z_mm": les.mld_point_mm[2],
+                         "mld_mm": les.mld_mm, "reference_diameter_mm": les.reference_diameter_mm,
+                         "diameter_stenosis_pct": les.diameter_stenosis_pct,
+                         "area_stenosis_pct": les.area_stenosis_pct, "lesion_length_mm": les.length_mm,
+                         "start_mm": les.start_mm, "end_mm": les.end_mm, "mld_arc_mm": les.mld_arc_mm,
+                         "best_view": best.get("best_view"), "best_view_foreshortening": best.get("best_foreshortening"),
+                         "best_view_overlap": best.get("best_overlap")})
+        return rows
+
+    def branch_rows(self) -> list[dict[str, Any]]:
+        return [b.row() for b in self.branches]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (``qca.json``): settings, branches with profiles, lesions, bifurcations, views."""
+        branches = []
+        for b in self.branches:
+            p = b.profile
+            branches.append({**b.row(), "reference_reason": p.reason or None,
+                             "profile": {"arc_mm": np.round(p.arc_mm, 4).tolist(),
+                                         "diameter_mm": np.round(p.diameter_mm, 4).tolist(),
+                                         "analysed": p.analysed.tolist(),
+                                         "reference_mm": [None if not math.isfinite(x) else round(float(x), 4)
+                                                          for x in p.reference_mm()]}})
+        return _json_safe({
+            "format": "angiohull-qca", "version": 1,
+            "settings": _settings_dict(self.settings),
+            "tree": {"n_branches": self.tree.n_branches, "n_bifurcations": len(self.tree.bifurcations),
+                     "length_mm": self.tree.length_mm},
+            "branches": branches,
+            "lesions": [{**row, **les.to_dict()} for row, les in zip(self.lesion_rows(), self.lesions)],
+            "bifurcations": [b.to_dict() for b in self.bifurcations],
+            "lesion_views": [vm.to_dict(grid=True) for vm in self.lesion_views],
+            "views": list(self.views),
+        })
+
+
+def _settings_dict(settings: QcaSettings) -> dict[str, Any]:
+    from dataclasses import asdict
+
+    return asdict(settings)
+
+
+def _json_safe(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        return None if not math.isfinite(float(value)) else float(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    return value
+
+
+def _check_tree(tree: Any) -> VesselTree:
+    if tree is None:
+        raise QcaError("quantitative analysis needs a vessel tree, got None (the reconstruction built no tree: "
+                       "see its tree_error)")
+    if not isinstance(tree, VesselTree):
+        raise QcaError(f"quantitative analysis needs a VesselTree, got {type(tree).__name__}")
+    return tree
+
+
+def branch_profile(tree: VesselTree, branch: int, settings: ProfileSettings = ProfileSettings(), *,
+                   strict: bool = True) -> DiameterProfile:
+    """The diameter profile, reference and lesions of one branch (:mod:`.profile`).
+
+    Raises
+    ------
+    QcaError
+        If the branch does not exist, or (``strict``) it is too short for the reference fit;
+        with ``strict=False`` such a branch gets a profile without reference or lesions, and
+        ``reason`` says why.
+    """
+    tree = _check_tree(tree)
+    if isinstance(branch, bool) or not isinstance(branch, (int, np.integer)) or not 0 <= branch < tree.n_branches:
+        raise QcaError(f"branch {branch!r} does not exist: the tree has branches 0 to {tree.n_branches - 1}")
+    b = tree.branches[int(branch)]
+    arc = b.arc_length_mm
+    diameter = 2.0 * b.radius_mm
+    analysed = np.ones(arc.shape, dtype=bool)
+    if b.parent is not None:
+        parent = tree.branches[b.parent]
+        gap = float(np.linalg.norm(b.points_mm[0] - parent.points_mm[b.parent_point]))
+        analysed = arc > max(float(parent.radius_mm[b.parent_point]) - gap, 0.0)
+    what = f"branch {int(branch)} ({b.name!r})" if b.name else f"branch {int(branch)}"
+    idx = np.flatnonzero(analysed)
+    try:
+        if len(idx) < 2:
+            raise QcaError(f"{what}: no point lies outside its parent's lumen; the reference fit needs at least "
+                           f"{settings.min_reference_length_mm:g} mm")
+        fit = reference_fit(arc[idx], diameter[idx], settings, what=what)
+    except QcaError as exc:
+        if strict:
+            raise
+        return DiameterProfile(int(branch), arc, diameter, analysed, None, (), str(exc))
+    ref = fit(arc[idx])
+    lesions = find_lesions(int(branch), arc[idx], diameter[idx], ref, b.points_mm[idx], settings)
+    kept = np.zeros(arc.shape, dtype=bool)
+    kept[idx] = fit.kept
+    fit = type(fit)(fit.diameter_at_start_mm, fit.slope_mm_per_mm, fit.noise_mm, kept)
+    return DiameterProfile(int(branch), arc, diameter, analysed, fit, lesions)
+
+
+def _tortuosity(points: np.ndarray) -> dict[str, float]:
+    from ..synthetic.tortuosity import curvature_metric, distance_metric, sum_of_angles_metric
+
+    try:
+        return {"curvature_rad_per_cm": curvature_metric(points), "soam_rad_per_cm": sum_of_angles_metric(points),
+                "distance_metric": distance_metric(points)}
+    except ValueError:  # too short for the 1 mm resampling
+        return {}
+
+
+def analyse_tree(tree: VesselTree, projections: Sequence[Projection] = (), view_names: Sequence[str] | None = None,
+                 settings: QcaSettings = QcaSettings()) -> QcaResult:
+    """Quantitative coronary analysis of a vessel tree.
+
+    Parameters
+    ----------
+    tree : VesselTree
+        Any method's tree, or a true one (mm, patient frame).
+    projections : sequence of Projection, optional
+        The acquired views: each branch's foreshortening and overlap in each (``views``).
+    view_names : sequence of str, optional
+    settings : QcaSettings
+
+    Returns
+    -------
+    QcaResult
+        Per branch: length, diameter profile, reference, lesions, tortuosity; per bifurcation:
+        angles and Medina flags; per lesion: its view map and best working view; per view: the
+        branches' foreshortening and overlap. Branches too short for a reference fit are kept
+        without lesions (``profile.reason``).
+
+    Raises
+    ------
+    QcaError
+        If ``tree`` is None, not a VesselTree, or has no branch long enough for a reference fit.
+    """
+    tree = _check_tree(tree)
+    branches = []
+    for i, b in enumerate(tree.branches):
+        profile = branch_profile(tree, i, settings.profile, strict=False)
+        diameter = 2.0 * b.radius_mm
+        branches.append(BranchQca(i, b.name, b.parent, b.parent_point, b.length_mm, _mean_along(diameter, b.arc_length_mm),
+                                  float(diameter.min()), float(diameter.max()), profile, _tortuosity(b.points_mm)))
+    if all(b.profile.reference is None for b in branches):
+        longest = max(branches, key=lambda b: b.length_mm)
+        raise QcaError(f"no branch of the tree is long enough for a reference diameter fit (the longest, branch "
+                       f"{longest.index}, is {longest.length_mm:.1f} mm; the fit needs "
+                       f"{settings.profile.min_reference_length_mm:g} mm)")
+    lesions = tuple(les for b in branches for les in b.profile.lesions)
+    bifurcations = analyse_bifurcations(tree, lesions, settings.bifurcation)
+    maps = []
+    if settings.lesion_views:
+        for les in lesions:
+            length = tree.branches[les.branch].length_mm
+            lo = max(0.0, les.start_mm - settings.lesion_view_margin_mm)
+            hi = min(length, les.end_mm + settings.lesion_view_margin_mm)
+            maps.append(view_map(tree, les.branch, lo, hi, settings.view_map))
+    views = tuple(view_report(tree, projections, view_names, near_mm=settings.view_map.near_mm)) if projections else ()
+    return QcaResult(tree, settings, tuple(branches), lesions, bifurcations, tuple(maps), views)
+
+
+def _mean_along(values: np.ndarray, arc: np.ndarray) -> float:
+    """Arc-length weighted mean (trapezoid) of a per-point quantity."""
+    if arc[-1] <= 0:
+        return float(values.mean())
+    return float(np.sum(0.5 * (values[1:] + values[:-1]) * np.diff(arc)) / arc[-1])
+
+
+def segment_view_map(tree: VesselTree, branch: int, start_mm: float | None = None, end_mm: float | None = None,
+                     settings: QcaSettings = QcaSettings()) -> ViewMap:
+    """The working-view map of a chosen segment (:func:`.views.view_map`)."""
+    try:
+        return view_map(_check_tree(tree), branch, start_mm, end_mm, settings.view_map)
+    except TreeError as exc:  # pragma: no cover - the tree was validated at construction
+        raise QcaError(str(exc)) from None
