@@ -9,8 +9,10 @@ At a bifurcation (a parent point that branches leave from, :attr:`VesselTree.bif
   widest child (largest mean diameter over its arm);
 * one **side** arm per other child.
 
-An arm's direction is the unit chord from the bifurcation point to the point ``arm_mm`` of arc
-along it (the whole arm when it is shorter; arms shorter than ``min_arm_mm`` get no direction).
+An arm's direction is the unit chord between its points ``o`` and ``o + arm_mm`` of arc from the
+bifurcation point, where ``o`` is ``arm_offset_radii`` times the parent's radius there: the core of
+a bifurcation, where the vessels merge, says little about where each of them goes (shortened to
+what the arm holds; arms with less than ``min_arm_mm`` beyond ``o`` get no direction).
 For each side arm the **proximal angle** is the angle between the proximal main and side arms'
 directions and the **distal angle** (the bifurcation angle) the angle between the distal main and
 side arms' directions, in degrees; a straight continuation of the proximal main has a proximal
@@ -37,6 +39,7 @@ __all__ = ["BifurcationSettings", "Arm", "SideBranchAngles", "BifurcationAnalysi
 @dataclass(frozen=True)
 class BifurcationSettings:
     arm_mm: float = 5.0  # chord length of an arm's direction, mm
+    arm_offset_radii: float = 2.0  # the chord starts this many parent radii from the bifurcation point
     min_arm_mm: float = 1.0  # shorter arms get no direction
     medina_stenosis_pct: float = 50.0
     medina_reach_mm: float = 10.0
@@ -99,17 +102,19 @@ def _point_at(points: np.ndarray, arc: np.ndarray, s: float) -> np.ndarray:
 
 def arm_direction(points_mm: np.ndarray, arc_mm: np.ndarray, start_mm: float, reverse: bool,
                   settings: BifurcationSettings = BifurcationSettings(), *,
-                  origin_mm: np.ndarray | None = None) -> tuple[np.ndarray | None, float]:
-    """``(unit chord or None, arm length used)`` of the arm from arc ``start_mm`` of a polyline,
-    forwards or (``reverse``) backwards; the chord starts at ``origin_mm`` when given (the
-    bifurcation point, for a side branch whose first point is off its parent's)."""
+                  offset_mm: float = 0.0) -> tuple[np.ndarray | None, float]:
+    """``(unit chord or None, chord length)`` of the arm that leaves arc ``start_mm`` of a
+    polyline forwards or (``reverse``) backwards: the chord between the arm's points
+    ``offset_mm`` and ``offset_mm + arm_mm`` from the start (shortened to what the polyline holds;
+    None when that is less than ``min_arm_mm``)."""
     available = start_mm - arc_mm[0] if reverse else arc_mm[-1] - start_mm
-    length = min(settings.arm_mm, available)
+    length = min(settings.arm_mm, available - offset_mm)
     if length < settings.min_arm_mm:
-        return None, length
-    end = start_mm - length if reverse else start_mm + length
-    first = _point_at(points_mm, arc_mm, start_mm) if origin_mm is None else np.asarray(origin_mm, dtype=np.float64)
-    chord = _point_at(points_mm, arc_mm, end) - first
+        return None, max(length, 0.0)
+    sign = -1.0 if reverse else 1.0
+    near = _point_at(points_mm, arc_mm, start_mm + sign * offset_mm)
+    far = _point_at(points_mm, arc_mm, start_mm + sign * (offset_mm + length))
+    chord = far - near
     norm = float(np.linalg.norm(chord))
     return (chord / norm if norm > 0 else None), length
 
@@ -143,11 +148,12 @@ def analyse_bifurcations(tree: VesselTree, lesions: Sequence[Lesion] = (),
         arc_p = arcs[bif.parent]
         s0 = float(arc_p[bif.parent_point])
         arms: list[Arm] = []
+        offset = settings.arm_offset_radii * float(parent.radius_mm[bif.parent_point])
 
         def arm(role: str, index: int, start: float, reverse: bool) -> Arm:
             branch = tree.branches[index]
-            origin = None if index == bif.parent else np.asarray(bif.position_mm)
-            direction, length = arm_direction(branch.points_mm, arcs[index], start, reverse, settings, origin_mm=origin)
+            direction, length = arm_direction(branch.points_mm, arcs[index], start, reverse, settings,
+                                              offset_mm=offset)
             return Arm(role, index, start, reverse, None if direction is None else tuple(float(x) for x in direction),
                        _mean_diameter(branch.radius_mm, arcs[index], start, max(length, 0.0), reverse))
 

@@ -16,7 +16,8 @@ Definitions (points and radii in mm, patient frame):
   C-arm at the given SID and SOD; default RAO 90 to LAO 90, CAU 45 to CRA 45, every 5 degrees),
   the segment's foreshortening and the share of its points overlapped by the rest of the tree.
   The **best** view maximises ``foreshortening x (1 - overlap)``, sought on the map and then on
-  a 1-degree grid around the map's best cell; ties go to the smaller total angulation.
+  a 1-degree grid around the map's best cell; scores within ``tie_score`` (0.01) of the highest
+  are ties, which go to the smallest total angulation (|primary| + |secondary|).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .. import _validation as _v
 from ..errors import QcaError
 from ..geometry import CArmGeometry, Projection, format_clinical_angles
 from ..tree import VesselTree
@@ -45,6 +47,19 @@ class ViewMapSettings:
     sod_mm: float = 800.0
     near_mm: float = 1.0  # points nearer than r_a + r_b + near_mm in 3D never overlap each other
     sample_mm: float = 0.5  # the tree is resampled this finely for the map
+    tie_score: float = 0.01  # scores this close to the best count as ties (then: least angulation)
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= _v.finite(self.tie_score, "ViewMapSettings.tie_score", error=QcaError) < 1.0:
+            raise QcaError(f"ViewMapSettings.tie_score must lie in [0, 1), got {self.tie_score!r}")
+        for name in ("step_deg", "sid_mm", "sod_mm", "near_mm", "sample_mm"):
+            _v.positive_finite(getattr(self, name), f"ViewMapSettings.{name}", error=QcaError)
+        refine = _v.finite(self.refine_step_deg, "ViewMapSettings.refine_step_deg", error=QcaError)
+        if refine < 0:
+            raise QcaError(f"ViewMapSettings.refine_step_deg must be >= 0 (0: no refinement), got {refine!r}")
+        if self.sod_mm >= self.sid_mm:
+            raise QcaError(f"ViewMapSettings.sod_mm must be smaller than sid_mm, got sod_mm={self.sod_mm} >= "
+                           f"sid_mm={self.sid_mm}")
 
 
 @dataclass(frozen=True)
@@ -225,7 +240,7 @@ def view_map(tree: VesselTree, branch: int, start_mm: float | None = None, end_m
     secondary = np.arange(s0, s1 + 1e-9, settings.step_deg)
     grid_s, grid_p = np.meshgrid(secondary, primary, indexing="ij")
     fs, ov = (x.reshape(grid_p.shape) for x in evaluate(grid_p.ravel(), grid_s.ravel()))
-    best_p, best_s = _best(grid_p.ravel(), grid_s.ravel(), (fs * (1.0 - ov)).ravel())
+    best_p, best_s = _best(grid_p.ravel(), grid_s.ravel(), (fs * (1.0 - ov)).ravel(), settings.tie_score)
     if settings.refine_step_deg and settings.refine_step_deg < settings.step_deg:
         # the best cell's neighbourhood again, on the finer step
         offsets = np.arange(-settings.step_deg, settings.step_deg + 1e-9, settings.refine_step_deg)
@@ -233,7 +248,7 @@ def view_map(tree: VesselTree, branch: int, start_mm: float | None = None, end_m
         fine_s = np.clip(best_s + offsets, s0, s1)
         fp, fsec = (x.ravel() for x in np.meshgrid(np.unique(fine_p), np.unique(fine_s), indexing="xy"))
         f_fs, f_ov = evaluate(fp, fsec)
-        best_p, best_s = _best(fp, fsec, f_fs * (1.0 - f_ov))
+        best_p, best_s = _best(fp, fsec, f_fs * (1.0 - f_ov), settings.tie_score, float((fs * (1.0 - ov)).max()))
     return ViewMap(int(branch), lo, hi, primary, secondary, fs, ov, best_p, best_s)
 
 
@@ -246,10 +261,13 @@ def _foreshortening_in_views(segment: np.ndarray, sources: np.ndarray) -> np.nda
     return (length * np.sqrt(np.clip(1.0 - along * along, 0.0, None))).sum(axis=1) / length.sum()
 
 
-def _best(primary: np.ndarray, secondary: np.ndarray, score: np.ndarray) -> tuple[float, float]:
-    """The angles of the highest score; ties (within 1e-9) go to the smallest total angulation,
-    then to the first listed."""
-    best = np.flatnonzero(score >= score.max() - 1e-9)
+def _best(primary: np.ndarray, secondary: np.ndarray, score: np.ndarray, tie: float,
+          highest: float | None = None) -> tuple[float, float]:
+    """The angles of the highest score (or of ``highest``, a score seen elsewhere, when larger);
+    scores within ``tie`` of it are ties, which go to the smallest total angulation, then to the
+    first listed."""
+    top = max(float(score.max()), highest if highest is not None else -np.inf)
+    best = np.flatnonzero(score >= top - tie - 1e-12)
     k = int(best[np.argmin(np.abs(primary[best]) + np.abs(secondary[best]))])
     return float(primary[k]), float(secondary[k])
 
