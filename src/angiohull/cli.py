@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Sequence, TextIO
 
 from . import __version__
-from .errors import AngiohullError, DicomGeometryWarning, TreeWarning
+from .errors import AngiohullError, DicomGeometryWarning, QcaError, TreeWarning
 from .reconstruction import AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES, PRESETS
 from .reconstruction.refine import REFINED
 from .synthetic.render import RASTERISERS
@@ -85,7 +85,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-tree", action="store_true",
                    help="skip the vessel tree and its exports (centerlines.vtp, tree.swc, tree.json, vessel.stl, "
                         "lumen.nii.gz)")
-    p.add_argument("--no-figure", action="store_true", help="do not draw figure.png")
+    p.add_argument("--no-figure", action="store_true", help="do not draw figure.png (nor, with --qca, the QCA figures)")
+    p.add_argument("--qca", action="store_true",
+                   help="then run the quantitative coronary analysis of the tree (as `angiohull qca OUT_DIR`) and "
+                        "write qca.json, lesions.csv, branches.csv and its figures into OUT_DIR/qca/")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
     p = sub.add_parser("evaluate", help="reconstruct a study and score it against its ground truth",
@@ -133,6 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "rotate, all views otherwise)")
     p.add_argument("--seed", type=int, default=None, help="seed of every random draw (default: fresh, recorded)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+    _add_qca_parser(sub)
     _add_dicom_commands(sub)
     _add_experiment_parsers(sub)
     return parser
@@ -221,12 +225,14 @@ def _cmd_reconstruct(args) -> int:
     from .study import load_study
     from .workflow import ReconstructOptions
 
+    if args.qca and args.no_tree:
+        raise AngiohullError("--qca analyses the vessel tree, which --no-tree skips; drop one of them")
     progress = _Progress(not args.quiet)
     study = load_study(args.study)
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines, args.device,
                                  min_views=args.min_views, calibrate=args.calibrate,
                                  calibrate_scale=args.calibrate_scale, preset=args.preset, tree=not args.no_tree)
-    _, report, _ = _run_study(study, options, args.output, progress, figure=not args.no_figure, score=False)
+    result, report, _ = _run_study(study, options, args.output, progress, figure=not args.no_figure, score=False)
     if not args.quiet:
         per_view = ", ".join(f"{v['name']} {v['dice2d_reprojection']:.1f} %" for v in report["views"])
         print(f"{report['n_vessel_points']} vessel points, {report['n_centerline_points']} centerline points; "
@@ -234,6 +240,19 @@ def _cmd_reconstruct(args) -> int:
         tree_line = _format_tree(report)
         if tree_line:
             print(tree_line)
+    if args.qca:
+        from .workflow import report_projections
+
+        if result.tree is None:
+            raise AngiohullError(f"--qca: the reconstruction built no vessel tree ({result.tree_error}), so there is "
+                                 f"nothing to analyse; the other outputs are in {args.output}/")
+        # the views as the reconstruction used them (after any calibration), as report.json records them
+        projections, names = report_projections(report, str(Path(args.output) / "report.json"))
+        try:
+            _run_qca(result.tree, projections, names, Path(args.output) / "qca", progress, segments=(),
+                     figures=not args.no_figure, lesion_views=True, quiet=args.quiet)
+        except QcaError as error:
+            raise QcaError(f"--qca: {error} (the reconstruction's outputs are in {args.output}/)") from None
     return 0
 
 
@@ -303,6 +322,134 @@ def _cmd_synth(args) -> int:
         for view, records, changed in zip(case.views, case.corruptions, case.changed_pixels):
             for record, count in zip(records, changed):
                 print(f"  {view.name}: {record.kind} {record.to_dict()} changed {count} pixels")
+    return 0
+
+
+# -- quantitative coronary analysis: qca ----------------------------------------------------------
+_SEGMENT_FORM = "BRANCH or BRANCH:START-END (branch index, arc lengths in mm), e.g. 2 or 2:10-30"
+
+
+def _segment_spec(text: str) -> tuple[int, float | None, float | None]:
+    """``"2"`` -> (2, None, None): the whole branch; ``"2:10-30"`` -> (2, 10.0, 30.0)."""
+    import re
+
+    number = r"(\d+(?:\.\d*)?|\.\d+)"
+    match = re.fullmatch(rf"\s*(\d+)\s*(?::\s*{number}\s*-\s*{number}\s*)?", text)
+    if match is None:
+        raise argparse.ArgumentTypeError(f"expected {_SEGMENT_FORM}; got {text!r}")
+    branch, start, end = match.groups()
+    return int(branch), (None if start is None else float(start)), (None if end is None else float(end))
+
+
+def _add_qca_parser(sub) -> None:
+    p = sub.add_parser("qca", help="quantitative coronary analysis of a reconstruction's vessel tree",
+                       description="Quantitative coronary analysis (3D QCA) of the vessel tree of a reconstruction "
+                                   "(RESULT_DIR/tree.json, and the acquired views from RESULT_DIR/report.json when "
+                                   "present): per branch the length, diameter profile, reference taper and "
+                                   "tortuosity; per lesion the minimal lumen diameter, % diameter stenosis, length "
+                                   "and best working view; per bifurcation the angles and Medina flags; per view "
+                                   "each branch's foreshortening and overlap. Writes qca.json, lesions.csv, "
+                                   "branches.csv, profiles.png and one view_map_*.png per lesion and segment.")
+    p.add_argument("result", type=Path, metavar="RESULT_DIR",
+                   help="output folder of `angiohull reconstruct` (holds tree.json)")
+    p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT_DIR",
+                   help="folder for the outputs (default RESULT_DIR/qca)")
+    p.add_argument("--segment", type=_segment_spec, action="append", default=[], metavar="BRANCH[:START-END]",
+                   help="repeatable: also the view map of this segment (view_map_segment_*.png, and under "
+                        "segment_views in qca.json), e.g. 2:10-30 = branch 2 from 10 to 30 mm of arc, 2 = all of "
+                        "branch 2")
+    p.add_argument("--no-figures", action="store_true", help="write only qca.json, lesions.csv and branches.csv")
+    p.add_argument("--no-views", action="store_true",
+                   help="no view map per lesion (faster; no best working view in lesions.csv)")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+
+
+def _format_mm_range(value: float) -> str:
+    """An arc length for a file name or a title: 0.1 mm precision, no trailing zeros (10, 12.5)."""
+    text = f"{value:.1f}"
+    return text[:-2] if text.endswith(".0") else text
+
+
+def _branch_text(tree, index: int) -> str:
+    name = tree.branches[index].name
+    return f"branch {index} ({name})" if name else f"branch {index}"
+
+
+def _format_lesion(i: int, row: dict) -> str:
+    branch = f"branch {row['branch']}" + (f" ({row['branch_name']})" if row["branch_name"] else "")
+    text = (f"lesion {i}: {branch} {row['diameter_stenosis_pct']:.1f} % DS, MLD {row['mld_mm']:.2f} mm, ref "
+            f"{row['reference_diameter_mm']:.2f} mm, {row['lesion_length_mm']:.1f} mm long at "
+            f"({row['x_mm']:.1f}, {row['y_mm']:.1f}, {row['z_mm']:.1f}) mm")
+    if row.get("best_view"):
+        text += f"; best view {row['best_view']}"
+    return text
+
+
+def _run_qca(tree, projections, names, out_dir: Path, progress: _Progress, *, segments, figures: bool,
+             lesion_views: bool, quiet: bool) -> dict[str, Path]:
+    """Analyse ``tree``, write the files and figures into ``out_dir`` and print the lesions."""
+    from .qca import QcaSettings, analyse_tree, segment_view_map
+    from .qca.views import segment_points
+    from .workflow import write_qca_outputs
+
+    settings = QcaSettings(lesion_views=lesion_views)
+    for branch, start, end in segments:  # a segment that does not exist fails before the analysis
+        segment_points(tree, branch, start, end)
+    progress(f"analysing the vessel tree ({tree.n_branches} branches, {len(tree.bifurcations)} bifurcations"
+             f"{f', {len(projections)} views' if projections else ', no acquired views'})")
+    result = analyse_tree(tree, projections, names, settings)
+    segment_maps = []
+    for branch, start, end in segments:
+        progress(f"view map of {_branch_text(tree, branch)} "
+                 f"{'' if start is None else f'{start:g}-{end:g} mm'}".rstrip())
+        segment_maps.append(segment_view_map(tree, branch, start, end, settings))
+    paths = write_qca_outputs(out_dir, result, segment_maps)
+    if figures:
+        from .viz import qca_profiles_figure, qca_view_map_figure
+
+        progress("drawing profiles.png and the view maps")
+        paths["profiles"] = qca_profiles_figure(result, out_dir / "profiles.png")
+        for i, (lesion, vm) in enumerate(zip(result.lesions, result.lesion_views)):
+            title = (f"lesion {i}: {_branch_text(tree, lesion.branch)}, {lesion.diameter_stenosis_pct:.0f} % DS; "
+                     f"arc {vm.start_mm:.1f}-{vm.end_mm:.1f} mm")
+            paths[f"view_map_lesion_{i}"] = qca_view_map_figure(vm, out_dir / f"view_map_lesion_{i}.png", title)
+        for vm in segment_maps:
+            key = f"view_map_segment_{vm.branch}_{_format_mm_range(vm.start_mm)}-{_format_mm_range(vm.end_mm)}"
+            title = f"segment: {_branch_text(tree, vm.branch)}, arc {vm.start_mm:.1f}-{vm.end_mm:.1f} mm"
+            paths[key] = qca_view_map_figure(vm, out_dir / f"{key}.png", title)
+    if not quiet:
+        rows = result.lesion_rows()
+        for i, row in enumerate(rows):
+            print(_format_lesion(i, row))
+        for vm in segment_maps:
+            fs, overlap = vm.best_foreshortening, vm.best_overlap
+            print(f"segment {_branch_text(tree, vm.branch)} {vm.start_mm:.1f}-{vm.end_mm:.1f} mm: best view "
+                  f"{vm.best_name} (foreshortening {fs:.2f}, overlap {100.0 * overlap:.0f} %)")
+        worst = max(result.lesions, key=lambda les: les.diameter_stenosis_pct, default=None)
+        without = sum(b.profile.reference is None for b in result.branches)
+        summary = (f"{len(result.lesions)} lesion{'s' if len(result.lesions) != 1 else ''} in {tree.n_branches} "
+                   f"branch{'es' if tree.n_branches != 1 else ''} ({tree.length_mm:.1f} mm), "
+                   f"{len(result.bifurcations)} bifurcation{'s' if len(result.bifurcations) != 1 else ''}")
+        if worst is not None:
+            summary += f"; max {worst.diameter_stenosis_pct:.1f} % DS ({_branch_text(tree, worst.branch)})"
+        if without:
+            summary += f"; {without} branch{'es' if without != 1 else ''} too short for a reference diameter"
+        print(summary)
+        print(f"outputs in {out_dir}/: {', '.join(path.name for path in paths.values())}")
+    return paths
+
+
+def _cmd_qca(args) -> int:
+    from .workflow import load_result_for_qca
+
+    progress = _Progress(not args.quiet)
+    tree, projections, names = load_result_for_qca(args.result)
+    if not projections:
+        why = "its report.json lists none" if (args.result / "report.json").is_file() else "no report.json"
+        progress(f"no acquired views in {args.result} ({why}): qca.json gets no per-view foreshortening and overlap")
+    out = args.output if args.output is not None else args.result / "qca"
+    _run_qca(tree, projections, names, out, progress, segments=args.segment, figures=not args.no_figures,
+             lesion_views=not args.no_views, quiet=args.quiet)
     return 0
 
 
@@ -449,7 +596,7 @@ def _cmd_study_from_dicom(args) -> int:
 
 
 _COMMANDS = {"reconstruct": _cmd_reconstruct, "evaluate": _cmd_evaluate, "demo": _cmd_demo, "synth": _cmd_synth,
-             "dicom-info": _cmd_dicom_info, "segment": _cmd_segment, "study-from-dicom": _cmd_study_from_dicom}
+             "qca": _cmd_qca, "dicom-info": _cmd_dicom_info, "segment": _cmd_segment, "study-from-dicom": _cmd_study_from_dicom}
 
 
 class _WarningPrinter:

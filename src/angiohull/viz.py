@@ -13,6 +13,12 @@ Public functions
     re-projected silhouette (bottom rows).
 :func:`overlay_rgb`
     The colour-coded mask / re-projection comparison image used by the view panels.
+:func:`qca_profiles_figure`
+    The diameter profiles of a quantitative coronary analysis, one panel per branch: reference
+    taper, lesions with their MLD, %DS and length.
+:func:`qca_view_map_figure`
+    A segment's view map: ``foreshortening x (1 - overlap)`` over the C-arm angles, with the
+    foreshortening contours, the overlapped region and the best working view.
 
 Colour code of the overlays (:data:`OVERLAY_COLOURS`, Okabe–Ito colours that stay distinct for
 colour-blind readers): pixels in both the mask and the re-projection are light grey, mask-only
@@ -29,14 +35,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib import patheffects
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.patches import Patch
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch, Rectangle
 
 from . import _validation as _v
 from .errors import AngiohullError
 
-__all__ = ["OVERLAY_COLOURS", "overlay_rgb", "reconstruction_figure"]
+__all__ = ["OVERLAY_COLOURS", "overlay_rgb", "reconstruction_figure", "qca_profiles_figure", "qca_view_map_figure"]
 
 #: RGB colour (uint8) of each overlay class.
 OVERLAY_COLOURS: dict[str, tuple[int, int, int]] = {
@@ -408,3 +416,258 @@ def reconstruction_figure(
     finally:
         fig.clear()
     return out
+
+
+# --------------------------------------------------------------------------------------------------
+# Quantitative coronary analysis
+# --------------------------------------------------------------------------------------------------
+
+#: At most this many diameter-profile panels (the longest branches); the title counts the rest.
+QCA_MAX_PANELS = 24
+_QCA_COLUMNS = 4
+_QCA_MIN_LENGTH_MM = 10.0
+_LESION_COLOUR = "#d55e00"  # Okabe–Ito vermillion
+_PROFILE_COLOUR = "#0072b2"  # Okabe–Ito blue
+
+
+def _dpi(dpi: Any) -> float:
+    if isinstance(dpi, (bool, np.bool_)):
+        raise AngiohullError(f"dpi must be a positive number, got {dpi!r}")
+    try:
+        value = float(dpi)
+    except (TypeError, ValueError):
+        raise AngiohullError(f"dpi must be a positive number, got {dpi!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise AngiohullError(f"dpi must be a positive number, got {dpi!r}")
+    return value
+
+
+def _branch_label(index: int, name: str) -> str:
+    return f"branch {index} ({name})" if name else f"branch {index}"
+
+
+def _lesion_label(lesion: Any) -> str:
+    return (f"%DS {lesion.diameter_stenosis_pct:.0f} %, MLD {lesion.mld_mm:.2f} mm, "
+            f"{lesion.length_mm:.1f} mm")
+
+
+def _save(fig: Figure, path: str | os.PathLike[str], dpi: float) -> Path:
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, format="png", dpi=dpi, facecolor="white")
+    return out
+
+
+def _draw_profile(ax: Any, branch: Any) -> None:
+    p = branch.profile
+    arc, diameter, analysed = p.arc_mm, p.diameter_mm, p.analysed
+    ax.plot(arc, diameter, color="0.75", linewidth=0.8, zorder=1)  # the whole profile, faint
+    shown = np.where(analysed, diameter, np.nan)  # the analysed run, in colour
+    ax.plot(arc, shown, color=_PROFILE_COLOUR, linewidth=1.1, label="diameter", zorder=3)
+    if not analysed.all():
+        ax.scatter(arc[~analysed], diameter[~analysed], s=6, color="0.6", linewidths=0, zorder=2,
+                   label="not analysed (inside the parent)")
+    reference = np.where(analysed, p.reference_mm(), np.nan)
+    ax.plot(arc, reference, color="0.15", linestyle="--", linewidth=1.0, label="reference", zorder=4)
+    top = float(np.nanmax(np.concatenate([diameter, reference[np.isfinite(reference)]])))
+    ax.set_ylim(0.0, 1.25 * top if top > 0 else 1.0)
+    ax.set_xlim(float(arc[0]), float(arc[-1]))
+    span = float(arc[-1] - arc[0])
+    for k, lesion in enumerate(p.lesions):
+        # the label under the lesion, kept clear of the panel's sides
+        x_text = float(np.clip(0.5 * (lesion.start_mm + lesion.end_mm), arc[0] + 0.17 * span, arc[-1] - 0.17 * span))
+        ax.axvspan(lesion.start_mm, lesion.end_mm, color=_LESION_COLOUR, alpha=0.18, linewidth=0, zorder=0)
+        ax.plot([lesion.mld_arc_mm], [lesion.mld_mm], marker="v", markersize=5, color=_LESION_COLOUR, zorder=5)
+        ax.annotate(_lesion_label(lesion), xy=(lesion.mld_arc_mm, lesion.mld_mm),
+                    xytext=(x_text, (0.04 + 0.09 * (k % 3)) * ax.get_ylim()[1]),
+                    ha="center", va="bottom", fontsize=6, color="0.1", zorder=6,
+                    bbox=dict(boxstyle="round,pad=0.2", facecolor="white", edgecolor=_LESION_COLOUR, alpha=0.85,
+                              linewidth=0.5))
+    ax.set_title(_branch_label(branch.index, branch.name), fontsize=9)
+    ax.set_xlabel("arc length (mm)", fontsize=8)
+    ax.set_ylabel("diameter (mm)", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.grid(True, linewidth=0.3, alpha=0.5)
+
+
+def qca_profiles_figure(result: Any, path: str | os.PathLike[str], *, title: str | None = None,
+                        dpi: int = 110) -> Path:
+    """Write the diameter profiles of a quantitative coronary analysis as a PNG; return its path.
+
+    One panel per branch that has a reference diameter and is at least 10 mm long (at most
+    :data:`QCA_MAX_PANELS`, the longest, in tree order; the title says how many are left out),
+    four to a row: the diameter (mm) against arc length (mm), the points inside the parent's
+    lumen (not analysed) in grey, the reference taper dashed, and each lesion's span shaded, its
+    minimal lumen diameter marked and labelled with %DS, MLD and length.
+
+    Parameters
+    ----------
+    result : angiohull.qca.QcaResult
+    path : str or path-like
+        Where to write the PNG (parent folders are created).
+    title : str, optional
+        First line of the figure title (default "quantitative coronary analysis: diameter profiles").
+    dpi : int
+
+    Raises
+    ------
+    AngiohullError (a ValueError)
+        If ``result`` is not a QcaResult or ``dpi`` is not a positive number.
+    """
+    from .qca import QcaResult
+
+    if not isinstance(result, QcaResult):
+        raise AngiohullError(f"result must be an angiohull.qca.QcaResult, got {type(result).__name__}")
+    dpi_value = _dpi(dpi)
+    eligible = [b for b in result.branches if b.profile.reference is not None and b.length_mm >= _QCA_MIN_LENGTH_MM]
+    without = len(result.branches) - len(eligible)
+    shown = sorted(sorted(eligible, key=lambda b: -b.length_mm)[:QCA_MAX_PANELS], key=lambda b: b.index)
+    capped = len(eligible) - len(shown)
+    n = len(shown)
+    cols = max(1, min(_QCA_COLUMNS, n))
+    rows = max(1, math.ceil(n / cols))
+    # Fixed margins in inches instead of a constrained layout, which doubles the drawing time of
+    # a grid of many panels: every panel 3.05 x 2.1 in, 0.6 in beside it for the tick labels and
+    # 0.85 in above and below for its title and x label.
+    panel_w, panel_h, gap_w, gap_h, top_in, bottom_in, left_in = 3.05, 2.1, 0.6, 0.85, 0.85, 0.5, 0.6
+    width = left_in + cols * panel_w + (cols - 1) * gap_w + 0.2
+    height = top_in + rows * panel_h + (rows - 1) * gap_h + bottom_in
+    fig = Figure(figsize=(width, height), dpi=dpi_value)
+    fig.subplots_adjust(left=left_in / width, right=1.0 - 0.2 / width, bottom=bottom_in / height,
+                        top=1.0 - top_in / height, wspace=gap_w / panel_w, hspace=gap_h / panel_h)
+    FigureCanvasAgg(fig)
+    try:
+        axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
+        for ax, branch in zip(axes, shown):
+            _draw_profile(ax, branch)
+        for ax in axes[n:]:
+            ax.set_axis_off()
+        if n == 0:
+            axes[0].text(0.5, 0.5, "no branch has a reference diameter\n(all shorter than the reference fit needs)",
+                         transform=axes[0].transAxes, ha="center", va="center", fontsize=10, color="0.25")
+        else:
+            handles, labels = axes[0].get_legend_handles_labels()
+            for ax in axes[1:n]:  # the "not analysed" entry may first appear in a later panel
+                for h, lab in zip(*ax.get_legend_handles_labels()):
+                    if lab not in labels:
+                        handles.append(h)
+                        labels.append(lab)
+            if any(b.profile.lesions for b in shown):
+                handles.append(Patch(facecolor=_LESION_COLOUR, alpha=0.18, label="lesion"))
+                labels.append("lesion")
+            axes[0].legend(handles, labels, loc="best", fontsize=6, framealpha=0.85, handlelength=1.5,
+                           borderpad=0.3, labelspacing=0.25)
+        n_lesions = len(result.lesions)
+        heading = title if title is not None else "quantitative coronary analysis: diameter profiles"
+        counts = (f"{len(result.branches)} branch{'es' if len(result.branches) != 1 else ''}, "
+                  f"{n_lesions} lesion{'s' if n_lesions != 1 else ''}; {n} shown")
+        left_out = []
+        if capped:
+            left_out.append(f"{capped} more left out (the {QCA_MAX_PANELS} longest shown)")
+        if without:
+            left_out.append(f"{without} without a reference diameter or shorter than {_QCA_MIN_LENGTH_MM:g} mm "
+                            f"not shown")
+        if left_out:
+            counts += " · " + " · ".join(left_out)
+        fig.suptitle(f"{heading}\n{counts}", fontsize=11)
+        return _save(fig, path, dpi_value)
+    finally:
+        fig.clear()
+
+
+def _format_mm(value: float) -> str:
+    return f"{value:.1f}"
+
+
+def qca_view_map_figure(view_map: Any, path: str | os.PathLike[str], title: str | None = None, *,
+                        dpi: int = 110) -> Path:
+    """Write a segment's view map (:class:`angiohull.qca.ViewMap`) as a PNG; return its path.
+
+    The map of ``foreshortening x (1 - overlap)`` over the primary angle (x axis, RAO negative,
+    LAO positive) and the secondary angle (y axis, CAU negative, CRA positive), with contour lines
+    of the foreshortening at 0.7, 0.8 and 0.9 (those the map reaches), the views where part of the
+    segment is overlapped hatched, and the best view marked with a star and its name.
+
+    Parameters
+    ----------
+    view_map : angiohull.qca.ViewMap
+    path : str or path-like
+    title : str, optional
+        Default: the branch and the arc-length range.
+    dpi : int
+
+    Raises
+    ------
+    AngiohullError (a ValueError)
+        If ``view_map`` is not a ViewMap or ``dpi`` is not a positive number.
+    """
+    from .qca import ViewMap
+
+    if not isinstance(view_map, ViewMap):
+        raise AngiohullError(f"view_map must be an angiohull.qca.ViewMap, got {type(view_map).__name__}")
+    dpi_value = _dpi(dpi)
+    primary = np.asarray(view_map.primary_deg, dtype=np.float64)
+    secondary = np.asarray(view_map.secondary_deg, dtype=np.float64)
+    fs = np.asarray(view_map.foreshortening, dtype=np.float64)
+    overlap = np.asarray(view_map.overlap, dtype=np.float64)
+    score = fs * (1.0 - overlap)
+    width = float(np.ptp(primary)) if primary.size > 1 else 1.0
+    height = float(np.ptp(secondary)) if secondary.size > 1 else 1.0
+    # the map drawn at equal degrees per inch on both axes, plus room for the colour bar, labels and title
+    axes_width = 6.4 if width >= height else float(np.clip(5.0 * width / max(height, 1e-9), 2.5, 6.4))
+    axes_height = float(np.clip(axes_width * height / max(width, 1e-9), 1.5, 5.5))
+    fig = Figure(figsize=(axes_width + 2.1, axes_height + 1.7), dpi=dpi_value, layout="constrained")
+    FigureCanvasAgg(fig)
+    try:
+        ax = fig.subplots()
+        mesh = ax.pcolormesh(primary, secondary, score, shading="nearest", cmap=_POINT_CMAP, vmin=0.0, vmax=1.0)
+        cbar = fig.colorbar(mesh, ax=ax, shrink=0.9, pad=0.02)
+        cbar.set_label("foreshortening × (1 − overlap)", fontsize=8)
+        cbar.ax.tick_params(labelsize=7)
+        handles = []
+        grid = primary.size > 1 and secondary.size > 1
+        if grid:
+            low, high = float(np.nanmin(fs)), float(np.nanmax(fs))
+            levels = [level for level in (0.7, 0.8, 0.9) if low < level < high]
+            if levels:
+                stroke = [patheffects.withStroke(linewidth=2.0, foreground="0.15")]
+                lines = ax.contour(primary, secondary, fs, levels=levels, colors="white", linewidths=0.9)
+                lines.set(path_effects=stroke)
+                ax.clabel(lines, fmt="%.1f", fontsize=7)
+                handles.append(Line2D([], [], color="white", linewidth=0.9, path_effects=stroke,
+                                      label="foreshortening " + ", ".join(f"{level:.1f}" for level in levels)))
+            covered = overlap > 0
+            if covered.any():
+                if covered.all():
+                    ax.add_patch(Rectangle((0, 0), 1, 1, transform=ax.transAxes, facecolor="none",
+                                           edgecolor="0.1", hatch="//", linewidth=0.0))
+                else:
+                    ax.contourf(primary, secondary, covered.astype(float), levels=[0.5, 1.5], colors="none",
+                                hatches=["//"])
+                    ax.contour(primary, secondary, covered.astype(float), levels=[0.5], colors="0.1", linewidths=0.7)
+                handles.append(Patch(facecolor="none", edgecolor="0.1", hatch="//", label="part overlapped"))
+        ax.plot([view_map.best_primary_deg], [view_map.best_secondary_deg], marker="*", markersize=15,
+                color="white", markeredgecolor="black", linestyle="none", zorder=5)
+        # the label towards the middle of the map, so that it stays inside the axes
+        right = view_map.best_primary_deg > 0.5 * (primary[0] + primary[-1])
+        upper = view_map.best_secondary_deg > 0.5 * (secondary[0] + secondary[-1])
+        ax.annotate(view_map.best_name, xy=(view_map.best_primary_deg, view_map.best_secondary_deg),
+                    xytext=(-9 if right else 9, -9 if upper else 9), textcoords="offset points",
+                    ha="right" if right else "left", va="top" if upper else "bottom", annotation_clip=False,
+                    fontsize=8, fontweight="bold", zorder=6,
+                    bbox=dict(boxstyle="round,pad=0.25", facecolor="white", edgecolor="0.3", alpha=0.85))
+        handles.append(Line2D([], [], marker="*", markersize=10, color="white", markeredgecolor="black",
+                              linestyle="none", label=f"best: {view_map.best_name}"))
+        ax.legend(handles=handles, loc="lower left", fontsize=7, framealpha=0.85)
+        ax.set_xlabel("RAO ← primary angle (deg) → LAO", fontsize=8)
+        ax.set_ylabel("CAU ← secondary angle (deg) → CRA", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.set_aspect("equal", adjustable="box")
+        heading = title if title is not None else (
+            f"view map: branch {view_map.branch}, arc {_format_mm(view_map.start_mm)}-{_format_mm(view_map.end_mm)} mm")
+        fs_best, ov_best = view_map.best_foreshortening, view_map.best_overlap
+        ax.set_title(f"{heading}\nbest view {view_map.best_name}: foreshortening {fs_best:.2f}, overlap "
+                     f"{100.0 * ov_best:.0f} %", fontsize=9)
+        return _save(fig, path, dpi_value)
+    finally:
+        fig.clear()

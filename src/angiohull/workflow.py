@@ -13,7 +13,7 @@ import platform
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
@@ -23,12 +23,17 @@ from .metrics import PAPER_DETECTOR_SPACING_MM, dice2d, dice2d_paper, paper_dila
 from .rasterise import cell_silhouette
 from .reconstruction import DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ReconstructionResult, reconstruct
 from .reconstruction.calibration import Calibration, calibrate_shifts, shift_projection
-from .errors import AngiohullError, OutputError, StudyError
+from .errors import AngiohullError, GeometryError, OutputError, QcaError, StudyError
+from .geometry import Projection
 from .study import Study, View
 from .tree import VesselTree
 
+if TYPE_CHECKING:  # pragma: no cover
+    from .qca import QcaResult, ViewMap
+
 __all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_silhouettes", "evaluation_scores",
-           "tree_evaluation_scores", "tree_summary", "build_report", "write_outputs", "json_safe"]
+           "tree_evaluation_scores", "tree_summary", "build_report", "write_outputs", "json_safe",
+           "load_result_for_qca", "report_projections", "write_qca_outputs"]
 
 
 @dataclass(frozen=True)
@@ -263,20 +268,10 @@ def write_outputs(out_dir: Path, study: Study, result: ReconstructionResult, rep
         If ``out_dir`` or a file cannot be written (the message names the path and the reason);
         then no file of this call is left (an ``out_dir`` created by this call is removed again).
     """
-    import shutil
-    import tempfile
-
     from .exports import write_tree_exports
 
-    out = Path(out_dir)
-    created = not out.exists()
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=".angiohull-partial-", dir=out))
-    except OSError as exc:
-        raise OutputError(f"cannot write the outputs into {out}: {exc.strerror or exc}") from None
-    names = {"vessel": "vessel.ply", "report": "report.json"}
-    try:
+    def write(staging: Path) -> dict[str, str]:
+        names = {"vessel": "vessel.ply", "report": "report.json"}
         write_points_ply(staging / names["vessel"], result.vessel_points_mm,
                          comment="angiohull visual hull (kept lattice points)")
         if result.centerline_points_mm is not None:
@@ -300,6 +295,27 @@ def write_outputs(out_dir: Path, study: Study, result: ReconstructionResult, rep
             tree_report["lumen"] = {"spacing_mm": lumen.spacing_mm, "shape": list(lumen.labels.shape),
                                     "volume_mm3": lumen.volume_mm3}
         (staging / names["report"]).write_text(json.dumps(json_safe(report), indent=2) + "\n", encoding="utf-8")
+        return names
+
+    return _write_all_or_nothing(Path(out_dir), write)
+
+
+def _write_all_or_nothing(out: Path, write: Callable[[Path], dict[str, str]]) -> dict[str, Path]:
+    """Run ``write(staging)``, which writes files into a hidden folder inside ``out`` and returns
+    ``{key: file name}``, then move every file into ``out``. On any failure no file of this call
+    is left (an ``out`` created by this call is removed again) and an OSError becomes an
+    :class:`OutputError` that names the folder and the reason."""
+    import shutil
+    import tempfile
+
+    created = not out.exists()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".angiohull-partial-", dir=out))
+    except OSError as exc:
+        raise OutputError(f"cannot write the outputs into {out}: {exc.strerror or exc}") from None
+    try:
+        names = write(staging)
         for name in names.values():
             (staging / name).replace(out / name)
     except (OSError, AngiohullError) as exc:
@@ -311,3 +327,176 @@ def write_outputs(out_dir: Path, study: Study, result: ReconstructionResult, rep
         raise
     shutil.rmtree(staging, ignore_errors=True)
     return {key: out / name for key, name in names.items()}
+
+
+# -- quantitative coronary analysis of a written result: load, write ---------------------------------
+_RERUN = "run `angiohull reconstruct STUDY_DIR -o OUT_DIR` again to rewrite it"
+
+
+def _read_json_object(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise QcaError(f"{path}: cannot read it ({reason}); {_RERUN}") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise QcaError(f"{path}: not JSON ({exc.msg} at line {exc.lineno}, column {exc.colno}); {_RERUN}") from None
+    if not isinstance(data, dict):
+        raise QcaError(f"{path}: expected a JSON object, got {type(data).__name__}; {_RERUN}")
+    return data
+
+
+def report_projections(report: dict[str, Any], where: str = "report.json") -> tuple[list[Projection], list[str]]:
+    """The views of a ``report.json`` (:func:`build_report`) as projections, with their names:
+    each entry of ``views`` needs ``projection_matrix`` (3x4) and ``image_shape`` (rows, cols);
+    ``name`` defaults to ``"view N"`` (from 1).
+
+    Raises
+    ------
+    QcaError
+        If ``views`` is not a list, or a view lacks a valid matrix or image shape; the message
+        names ``where``, the view and the field.
+    """
+    views = report.get("views", [])
+    if not isinstance(views, list):
+        raise QcaError(f"{where}: \"views\" must be a list of views, got {type(views).__name__}; {_RERUN}")
+    projections, names = [], []
+    for i, view in enumerate(views):
+        if not isinstance(view, dict):
+            raise QcaError(f"{where}: views[{i}] must be an object, got {type(view).__name__}; {_RERUN}")
+        name = view.get("name")
+        name = str(name) if name not in (None, "") else f"view {i + 1}"
+        label = f"{where}: views[{i}] ({name!r})"
+        for key in ("projection_matrix", "image_shape"):
+            if key not in view:
+                raise QcaError(f"{label} has no \"{key}\"; {_RERUN}, or remove report.json to analyse the tree "
+                               f"without the per-view foreshortening and overlap")
+        shape = view["image_shape"]
+        if not isinstance(shape, (list, tuple)):
+            raise QcaError(f"{label}.image_shape must be [rows, cols], got {shape!r}; {_RERUN}")
+        try:
+            projections.append(Projection(view["projection_matrix"], tuple(shape)))
+        except GeometryError as exc:
+            raise QcaError(f"{label}.projection_matrix / image_shape: {exc}; {_RERUN}") from None
+        names.append(name)
+    return projections, names
+
+
+def load_result_for_qca(result_dir: str | Path) -> tuple[VesselTree, list[Projection], list[str]]:
+    """The vessel tree and acquired views of a reconstruction's output folder, for
+    :func:`angiohull.qca.analyse_tree`.
+
+    Reads ``RESULT_DIR/tree.json`` (:func:`angiohull.exports.read_tree_json`) and, when present,
+    the ``views`` of ``RESULT_DIR/report.json`` (:func:`report_projections`); without a
+    ``report.json`` the view lists are empty (the analysis then has no per-view section).
+
+    Returns
+    -------
+    (VesselTree, list of Projection, list of str)
+        The tree (mm, patient frame), the views as the reconstruction used them (after any
+        calibration) and their names.
+
+    Raises
+    ------
+    QcaError
+        If the folder does not exist, holds no ``tree.json`` (e.g. a reconstruction run with
+        ``--no-tree``, or one that built no tree: ``report.json``'s ``tree.error`` is quoted), or
+        ``report.json`` is unreadable or has a view without a valid matrix.
+    StudyError
+        If ``tree.json`` is not a valid vessel tree (the message starts with its path).
+    """
+    from .exports import read_tree_json
+
+    folder = Path(result_dir)
+    if not folder.exists():
+        raise QcaError(f"{folder}: no such folder; give the OUT_DIR of `angiohull reconstruct STUDY_DIR -o OUT_DIR`")
+    if not folder.is_dir():
+        raise QcaError(f"{folder}: not a folder; give the OUT_DIR of `angiohull reconstruct` (the folder that holds "
+                       f"tree.json), not a file in it")
+    tree_path, report_path = folder / "tree.json", folder / "report.json"
+    report = _read_json_object(report_path) if report_path.is_file() else None
+    if not tree_path.is_file():
+        why = ""
+        tree_info = report.get("tree") if report is not None else None
+        if isinstance(tree_info, dict) and tree_info.get("built") is False:
+            why = f" (the reconstruction built no vessel tree: {tree_info.get('error')})"
+        elif report is not None and isinstance(report.get("options"), dict) and report["options"].get("tree") is False:
+            why = " (the reconstruction was run with --no-tree)"
+        raise QcaError(f"{tree_path}: not found{why}; the quantitative analysis needs the vessel tree: run "
+                       f"`angiohull reconstruct STUDY_DIR -o {folder}` without --no-tree")
+    try:
+        tree = read_tree_json(tree_path)
+    except StudyError as exc:
+        if (folder / "study.yaml").is_file():  # e.g. the tree record of `angiohull synth`
+            raise StudyError(f"{exc}; {folder} is a study folder: reconstruct it first (`angiohull reconstruct "
+                             f"{folder} -o OUT_DIR`, or with --qca), then run `angiohull qca OUT_DIR`") from None
+        raise
+    if report is None:
+        return tree, [], []
+    projections, names = report_projections(report, str(report_path))
+    return tree, projections, names
+
+
+def _csv_cell(value: Any) -> str:
+    """One CSV cell: floats at full (repr) precision, None and non-finite numbers empty."""
+    if value is None:
+        return ""
+    if isinstance(value, (bool, np.bool_)):
+        return str(bool(value)).lower()
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value)) if math.isfinite(value) else ""
+    return str(value)
+
+
+def _write_csv(path: Path, columns: Sequence[str], rows: Sequence[dict[str, Any]]) -> None:
+    import csv
+
+    with path.open("w", encoding="utf-8", newline="") as handle:
+        writer = csv.writer(handle, lineterminator="\n")
+        writer.writerow(columns)
+        for row in rows:
+            writer.writerow([_csv_cell(row.get(column)) for column in columns])
+
+
+def write_qca_outputs(out_dir: str | Path, result: "QcaResult",
+                      segment_views: Sequence["ViewMap"] = ()) -> dict[str, Path]:
+    """Write a quantitative analysis into ``out_dir``, all or nothing (as :func:`write_outputs`):
+
+    * ``qca.json``: :meth:`QcaResult.to_dict`, plus ``segment_views`` (each map with its grid,
+      as ``lesion_views``) when segment maps are given;
+    * ``lesions.csv``: one row per lesion, columns :data:`angiohull.qca.LESION_COLUMNS` (only the
+      header when there is no lesion);
+    * ``branches.csv``: one row per branch, columns :data:`angiohull.qca.BRANCH_COLUMNS`.
+
+    Numbers in the CSV files are written at full precision (``repr``); None and nan are empty cells.
+
+    Returns
+    -------
+    dict
+        ``{"qca": path, "lesions": path, "branches": path}``.
+
+    Raises
+    ------
+    OutputError
+        If ``out_dir`` or a file cannot be written; then no file of this call is left.
+    """
+    from .qca import BRANCH_COLUMNS, LESION_COLUMNS, QcaResult
+
+    if not isinstance(result, QcaResult):
+        raise QcaError(f"write_qca_outputs needs a QcaResult (angiohull.qca.analyse_tree), got {type(result).__name__}")
+    content = result.to_dict()
+    if segment_views:
+        content["segment_views"] = json_safe([vm.to_dict(grid=True) for vm in segment_views])
+
+    def write(staging: Path) -> dict[str, str]:
+        names = {"qca": "qca.json", "lesions": "lesions.csv", "branches": "branches.csv"}
+        (staging / names["qca"]).write_text(json.dumps(content, indent=1) + "\n", encoding="utf-8")
+        _write_csv(staging / names["lesions"], LESION_COLUMNS, result.lesion_rows())
+        _write_csv(staging / names["branches"], BRANCH_COLUMNS, result.branch_rows())
+        return names
+
+    return _write_all_or_nothing(Path(out_dir), write)
