@@ -631,3 +631,20 @@ def test_result_tables_and_json():
         assert (row["x_mm"], row["y_mm"], row["z_mm"]) == les.mld_point_mm
         assert re.fullmatch(r"(LAO|RAO) \d+(\.\d)? (CRA|CAU) \d+(\.\d)?", row["best_view"])
         assert 0 <= row["best_view_foreshortening"] <= 1 and 0 <= row["best_view_overlap"] <= 1
+
+
+def test_a_shoulder_that_runs_into_a_deeper_lesion_is_part_of_it():
+    # a deep narrowing with a shallower one beside it, joined above the shallower one's edge level:
+    # one lesion (the deep one), not a second lesion sharing its MLD
+    arc = np.arange(0.0, 60.0 + 1e-9, 0.25)
+
+    def bump(centre, sd):
+        return np.exp(-0.5 * ((arc - centre) / sd) ** 2)
+
+    narrowing = 0.8 * bump(25, 1.0) + 0.3 * bump(33, 1.5) + 0.1 * bump(29, 3.0)
+    points = np.column_stack([arc, np.zeros_like(arc), np.zeros_like(arc)])
+    tree = VesselTree((Branch(points, 1.5 * (1.0 - narrowing)),))
+    lesions = branch_profile(tree, 0).lesions
+    assert len(lesions) == 1
+    assert lesions[0].mld_arc_mm == pytest.approx(25.0, abs=0.25)
+    assert len({les.mld_point_mm for les in lesions}) == len(lesions)

@@ -18,7 +18,9 @@ Notation: a branch of M points has arc length ``a`` (mm, 0 at its first point) a
 3. **Lesions.** The narrowing is ``n(a) = 1 - d(a) / ref(a)``. Every local maximum of ``n`` of at
    least ``min_stenosis_pct`` percent, taken from the deepest down, starts a lesion that extends on
    each side to where ``n`` falls below ``edge_fraction`` of that maximum (the crossing
-   interpolated linearly between points); a maximum inside an earlier lesion adds nothing. A
+   interpolated linearly between points); a maximum inside an earlier lesion, or whose extent
+   runs into one before falling below its own edge level, adds nothing (it is a shoulder of that
+   deeper lesion). A
    narrowing that still exceeds its edge level at an end of the analysed profile is not a focal
    lesion (a tapering tip, a vessel cut at the image border) and is not reported.
 4. **Per lesion**: the minimal lumen diameter ``MLD = min d`` over the lesion, its point (the
@@ -216,12 +218,15 @@ def find_lesions(branch: int, arc_mm: np.ndarray, diameter_mm: np.ndarray, refer
             continue
         level = settings.edge_fraction * narrowing[peak]
         left = peak
-        while left > 0 and narrowing[left - 1] >= level:
+        while left > 0 and narrowing[left - 1] >= level and not claimed[left - 1]:
             left -= 1
         right = peak
-        while right < m - 1 and narrowing[right + 1] >= level:
+        while right < m - 1 and narrowing[right + 1] >= level and not claimed[right + 1]:
             right += 1
+        joins = (left > 0 and claimed[left - 1]) or (right < m - 1 and claimed[right + 1])
         claimed[left:right + 1] = True
+        if joins:
+            continue  # runs into a deeper lesion above its own edge level: part of that one
         if left == 0 or right == m - 1:
             continue  # open-ended: reaches an end of the analysed profile
         start = _crossing(arc, narrowing, left, left - 1, level)

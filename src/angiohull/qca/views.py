@@ -75,6 +75,8 @@ class ViewMap:
     overlap: np.ndarray  # (S, P) share of the segment's points overlapped
     best_primary_deg: float
     best_secondary_deg: float
+    best_foreshortening: float  # at the best angles (which may lie between the map's cells)
+    best_overlap: float
 
     @property
     def score(self) -> np.ndarray:
@@ -91,12 +93,10 @@ class ViewMap:
         return float(self.foreshortening[i, j]), float(self.overlap[i, j])
 
     def to_dict(self, *, grid: bool = False) -> dict:
-        i = int(np.argmin(np.abs(self.secondary_deg - self.best_secondary_deg)))
-        j = int(np.argmin(np.abs(self.primary_deg - self.best_primary_deg)))
         out = {"branch": self.branch, "start_mm": self.start_mm, "end_mm": self.end_mm,
                "best_view": self.best_name, "best_primary_deg": self.best_primary_deg,
                "best_secondary_deg": self.best_secondary_deg,
-               "best_foreshortening": float(self.foreshortening[i, j]), "best_overlap": float(self.overlap[i, j])}
+               "best_foreshortening": self.best_foreshortening, "best_overlap": self.best_overlap}
         if grid:
             out.update(primary_deg=self.primary_deg.tolist(), secondary_deg=self.secondary_deg.tolist(),
                        foreshortening=np.round(self.foreshortening, 4).tolist(),
@@ -240,16 +240,19 @@ def view_map(tree: VesselTree, branch: int, start_mm: float | None = None, end_m
     secondary = np.arange(s0, s1 + 1e-9, settings.step_deg)
     grid_s, grid_p = np.meshgrid(secondary, primary, indexing="ij")
     fs, ov = (x.reshape(grid_p.shape) for x in evaluate(grid_p.ravel(), grid_s.ravel()))
-    best_p, best_s = _best(grid_p.ravel(), grid_s.ravel(), (fs * (1.0 - ov)).ravel(), settings.tie_score)
+    flat_p, flat_s, flat_score = grid_p.ravel(), grid_s.ravel(), (fs * (1.0 - ov)).ravel()
+    k = _best(flat_p, flat_s, flat_score, settings.tie_score)
+    best = (float(flat_p[k]), float(flat_s[k]), float(fs.ravel()[k]), float(ov.ravel()[k]))
     if settings.refine_step_deg and settings.refine_step_deg < settings.step_deg:
         # the best cell's neighbourhood again, on the finer step
         offsets = np.arange(-settings.step_deg, settings.step_deg + 1e-9, settings.refine_step_deg)
-        fine_p = np.clip(best_p + offsets, p0, p1)
-        fine_s = np.clip(best_s + offsets, s0, s1)
-        fp, fsec = (x.ravel() for x in np.meshgrid(np.unique(fine_p), np.unique(fine_s), indexing="xy"))
+        fine_p = np.unique(np.clip(best[0] + offsets, p0, p1))
+        fine_s = np.unique(np.clip(best[1] + offsets, s0, s1))
+        fp, fsec = (x.ravel() for x in np.meshgrid(fine_p, fine_s, indexing="xy"))
         f_fs, f_ov = evaluate(fp, fsec)
-        best_p, best_s = _best(fp, fsec, f_fs * (1.0 - f_ov), settings.tie_score, float((fs * (1.0 - ov)).max()))
-    return ViewMap(int(branch), lo, hi, primary, secondary, fs, ov, best_p, best_s)
+        k = _best(fp, fsec, f_fs * (1.0 - f_ov), settings.tie_score, float(flat_score.max()))
+        best = (float(fp[k]), float(fsec[k]), float(f_fs[k]), float(f_ov[k]))
+    return ViewMap(int(branch), lo, hi, primary, secondary, fs, ov, *best)
 
 
 def _foreshortening_in_views(segment: np.ndarray, sources: np.ndarray) -> np.ndarray:
@@ -262,14 +265,13 @@ def _foreshortening_in_views(segment: np.ndarray, sources: np.ndarray) -> np.nda
 
 
 def _best(primary: np.ndarray, secondary: np.ndarray, score: np.ndarray, tie: float,
-          highest: float | None = None) -> tuple[float, float]:
-    """The angles of the highest score (or of ``highest``, a score seen elsewhere, when larger);
-    scores within ``tie`` of it are ties, which go to the smallest total angulation, then to the
-    first listed."""
+          highest: float | None = None) -> int:
+    """Index of the view of the highest score (or of ``highest``, a score seen elsewhere, when
+    larger); scores within ``tie`` of it are ties, which go to the smallest total angulation, then
+    to the first listed."""
     top = max(float(score.max()), highest if highest is not None else -np.inf)
     best = np.flatnonzero(score >= top - tie - 1e-12)
-    k = int(best[np.argmin(np.abs(primary[best]) + np.abs(secondary[best]))])
-    return float(primary[k]), float(secondary[k])
+    return int(best[np.argmin(np.abs(primary[best]) + np.abs(secondary[best]))])
 
 
 def view_report(tree: VesselTree, projections: Sequence[Projection], names: Sequence[str] | None = None, *,
