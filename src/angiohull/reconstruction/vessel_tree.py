@@ -49,7 +49,10 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    (the point plus one radius along the tangent) still projects onto the mask in every view; a tip
    whose cap is outside a mask is cut back to where it is inside all of them (the root's start is
    only extended, so that its children's parent points stay).
-5. Radii are smoothed along the branch (Gaussian, ``radius_smoothing_mm``) before the ends move.
+5. Radii may be smoothed along the branch (Gaussian, ``radius_smoothing_mm``) before the ends
+   move; by default they are not: a smoothing of 0.5 mm filled stenoses in (on 16 generated trees
+   with 36 stenoses, the minimal lumen diameter came out 0.070 mm too wide on average, against
+   -0.004 mm unsmoothed) for a radius MAE of 0.043 instead of 0.048 mm.
 
 Arrays and projections in, a tree out; nothing here reads files.
 """
@@ -89,7 +92,7 @@ class TreeSettings:
     min_foreshortening: float = 0.4  # a view sees a cross-section when the vessel is at most ~66 deg out of its plane
     overlap_margin_px: float = 1.5  # projected discs closer than this (beyond touching) overlap
     overlap_margin_mm: float = 1.0  # points of one branch farther apart along it than the two radii plus this can overlap
-    radius_smoothing_mm: float = 0.5  # Gaussian sigma of the radii along a branch, mm
+    radius_smoothing_mm: float = 0.0  # Gaussian sigma of the radii along a branch, mm (0: none; see the notes)
     max_unseen_share: float = 0.75  # a leaf branch no view sees over this share of its points is removed
     end_reach_radii: float = 3.0  # how far a tip may move (either way), in radii
     max_bridge_mm: float = 80.0  # longest path through the support hull that joins a part to the tree
