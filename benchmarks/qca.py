@@ -315,8 +315,7 @@ def markdown(summary: dict, meta: dict) -> str:
     lines = [f"# Quantitative coronary analysis against the truth ({meta['date']})", "",
              f"Made by `OPENBLAS_NUM_THREADS=1 python benchmarks/qca.py --trees {meta['trees']} --workers "
              f"{meta['workers']}` at commit {meta['commit']} on {meta['machine']}, Python {meta['python']}, in "
-             f"{meta['wall_s']:.0f} s "
-             f"({meta['workers']} workers). {2 * meta['trees']} generated trees ({meta['trees']} RCA, {meta['trees']} "
+             f"{meta['wall_s']:.0f} s. {2 * meta['trees']} generated trees ({meta['trees']} RCA, {meta['trees']} "
              f"left) with 1-3 stenoses of 30-80 %, {meta['true_lesions']} stenoses in all, {meta['lesions_50']} of them "
              f">= 50 %; refined preset; the default `QcaSettings()`. Errors are measured minus true, mean ± sd. "
              f"Seeds passed over for having no stenosis or more than 3: {meta['seeds_passed']}.", "",
