@@ -433,13 +433,7 @@ _PROFILE_COLOUR = "#0072b2"  # Okabe–Ito blue
 def _dpi(dpi: Any) -> float:
     if isinstance(dpi, (bool, np.bool_)):
         raise AngiohullError(f"dpi must be a positive number, got {dpi!r}")
-    try:
-        value = float(dpi)
-    except (TypeError, ValueError):
-        raise AngiohullError(f"dpi must be a positive number, got {dpi!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise AngiohullError(f"dpi must be a positive number, got {dpi!r}")
-    return value
+    return _v.positive_finite(dpi, "dpi")
 
 
 def _branch_label(index: int, name: str) -> str:
