@@ -269,7 +269,15 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
         root = int(np.flatnonzero(alive)[0])
 
     # 5. branches, parents first
-    ahead_nodes = int(np.ceil(settings.direction_window_mm / spacing_mm)) + 2
+    tree = _branches_from(points, radius, neighbours, root, settings.direction_window_mm, spacing_mm)
+    return tree, info
+
+
+def _branches_from(points: np.ndarray, radius: np.ndarray, neighbours: list[list[int]], root: int,
+                   window_mm: float, spacing_mm: float) -> VesselTree:
+    """The tree of a graph without cycles, from ``root`` (module notes, step 5)."""
+    n = len(points)
+    ahead_nodes = int(np.ceil(window_mm / spacing_mm)) + 2
     branches: list[Branch] = []
     queue: deque[tuple[list[int], int | None, int | None]] = deque([([root], None, None)])
     visited = np.zeros(n, dtype=bool)
@@ -286,8 +294,7 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
             if len(onward) == 1:
                 nxt = onward[0]
             else:
-                nxt = _continuation(points, radius, neighbours, visited, path, onward, settings.direction_window_mm,
-                                   ahead_nodes)
+                nxt = _continuation(points, radius, neighbours, visited, path, onward, window_mm, ahead_nodes)
                 for w in onward:
                     if w != nxt:
                         visited[w] = True
@@ -302,7 +309,7 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
     kept = [b for b in branches if b is not None]
     if len(kept) != len(branches):  # pragma: no cover - a child always has its first step
         raise TreeError("internal: a branch of the skeleton's tree was empty")
-    return VesselTree(tuple(kept)), info
+    return VesselTree(tuple(kept))
 
 
 def _follow(neighbours: list[list[int]], visited: np.ndarray, start: int, first: int, nodes: int) -> list[int]:
