@@ -43,13 +43,24 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    phantom pieces the hull kept where vessels cross in every view). With two views a phantom and
    the true branch it mirrors overlap each other in both views, nothing tells them apart, and
    nothing is removed.
-4. **Ends.** The skeleton may stop short of a vessel's end or overshoot it where the hull ends in
+4. **Root.** The skeleton's root is its widest tip by the voxels' depth, which the occupancy
+   gives only coarsely, and the stub from the ostium to the first side branch can be short enough
+   to go as a spur. Once the radii are fitted, the ostium is the tip (the root's start or a
+   branch end with no child there) whose radius averaged over its last ``ostium_window_mm`` is
+   the largest, or, where a point inside a branch is wider than that by ``ostium_inner_ratio``
+   or more (averaged over the same arc, and farther than ``ostium_junction_mm`` from where
+   branches meet, as radii swell there), that point (the stub went as a spur); when it lies more than
+   ``reroot_mm`` from the root's start, the tree is traced again from there
+   (:func:`angiohull.tree.skeleton.rerooted`; at an interior point the wider side carries the
+   root on and the other starts a child at the root's first point), and step 5 extends the new
+   root's start to the end of the masks.
+5. **Ends.** The skeleton may stop short of a vessel's end or overshoot it where the hull ends in
    a point. Each tip of the tree (the root's start and every branch end with no child there) moves
    along its tangent to the farthest place, within ``end_reach_radii`` radii, where the end cap
    (the point plus one radius along the tangent) still projects onto the mask in every view; a tip
    whose cap is outside a mask is cut back to where it is inside all of them (the root's start is
    only extended, so that its children's parent points stay).
-5. Radii may be smoothed along the branch (Gaussian, ``radius_smoothing_mm``) before the ends
+6. Radii may be smoothed along the branch (Gaussian, ``radius_smoothing_mm``) before the ends
    move; by default they are not: a smoothing of 0.5 mm filled stenoses in (on 16 generated trees
    with 36 stenoses, the minimal lumen diameter came out 0.070 mm too wide on average, against
    -0.004 mm unsmoothed) for a radius MAE of 0.043 instead of 0.048 mm.
@@ -70,7 +81,7 @@ from scipy.spatial import cKDTree
 from ..errors import ReconstructionError, TreeError
 from ..geometry import Projection
 from ..tree import Branch, VesselTree
-from ..tree.skeleton import SkeletonInfo, SkeletonSettings, tree_from_skeleton
+from ..tree.skeleton import SkeletonInfo, SkeletonSettings, rerooted, tree_from_skeleton
 from ..tree.teasar import teasar_skeleton
 from ..tree.voxels import dilated, neighbour_edges
 from .cube import Lattice
@@ -95,6 +106,10 @@ class TreeSettings:
     radius_smoothing_mm: float = 0.0  # Gaussian sigma of the radii along a branch, mm (0: none; see the notes)
     max_unseen_share: float = 0.75  # a leaf branch no view sees over this share of its points is removed
     end_reach_radii: float = 3.0  # how far a tip may move (either way), in radii
+    ostium_window_mm: float = 3.0  # the ostium is the tip whose radius, averaged over this much arc, is largest,
+    ostium_inner_ratio: float = 1.3  # ... or a point inside a branch this many times wider still
+    ostium_junction_mm: float = 5.0  # ... and farther than this from where branches meet
+    reroot_mm: float = 5.0  # ... and the tree is rooted there when that lies farther than this from its root
     max_bridge_mm: float = 80.0  # longest path through the support hull that joins a part to the tree
     skeleton: SkeletonSettings = field(default_factory=SkeletonSettings)
 
@@ -116,6 +131,7 @@ class TreeBuild:
     seen_share: tuple[float, ...]  # per view: share of the points whose cross-section it sees
     unseen_points: int  # points no view sees (radius interpolated along the branch)
     tips_moved_mm: tuple[float, ...]  # per tip: how far it moved (+ out, - back)
+    rerooted_mm: float  # how far the root moved to the ostium after the fit (0: it stayed)
     timings_s: dict[str, float]
 
 
@@ -397,6 +413,45 @@ def _tip_move(end: np.ndarray, outward: np.ndarray, radius: float, projections, 
     return float(offsets[back[-1]]) if len(back) else 0.0
 
 
+def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings) -> tuple["_Arrays", float]:
+    """The tree rooted at its ostium (module notes, step 4), and how far the root moved (mm)."""
+    window = max(2, int(round(settings.ostium_window_mm / settings.point_step_mm)))
+    has_child_at = {(arrays.parents[b], arrays.parent_points[b]) for b in range(1, len(arrays.counts))}
+    tips: list[tuple[float, int]] = []  # (mean radius over the window from the tip, flat index)
+    inner, inner_radius = 0, -np.inf
+    for b in range(len(arrays.counts)):
+        r = arrays.radius[arrays.span(b)]
+        start = int(arrays.starts[b])
+        if b == 0:
+            tips.append((float(r[:window].mean()), start))
+        if (b, len(r) - 1) not in has_child_at:
+            tips.append((float(r[-window:].mean()), start + len(r) - 1))
+        mean = ndi.uniform_filter1d(r, size=min(window, len(r)), mode="nearest")
+        # not where branches meet: their cross-sections merge there and the radii swell
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(arrays.points[arrays.span(b)], axis=0), axis=1))])
+        junctions = [arc[arrays.parent_points[c]] for c in range(1, len(arrays.counts)) if arrays.parents[c] == b]
+        if b > 0:
+            junctions.append(0.0)
+        clear = np.ones(len(r), dtype=bool)
+        for at in junctions:
+            clear &= np.abs(arc - at) > settings.ostium_junction_mm
+        if clear.any():
+            k = int(np.flatnonzero(clear)[np.argmax(mean[clear])])
+            if mean[k] > inner_radius:
+                inner, inner_radius = start + k, float(mean[k])
+    tip_radius, best = max(tips)
+    if inner_radius > settings.ostium_inner_ratio * tip_radius:
+        best = inner  # the stub to the ostium went as a spur: the ostium is inside a branch
+    distance = float(np.linalg.norm(arrays.points[best] - arrays.points[0]))
+    if distance <= settings.reroot_mm:
+        return arrays, 0.0
+    branch = int(np.searchsorted(arrays.starts, best, side="right") - 1)
+    tree = arrays.tree()
+    point = int(np.argmin(np.linalg.norm(tree.branches[branch].points_mm - arrays.points[best], axis=1)))
+    tree = rerooted(tree, branch, point, window_mm=settings.skeleton.direction_window_mm)
+    return _Arrays.of(tree), distance
+
+
 def _move_ends(arrays: _Arrays, projections, images, settings: TreeSettings) -> tuple[VesselTree, list[float]]:
     tree = arrays.tree()
     has_child_at = {(b.parent, b.parent_point) for b in tree.branches[1:]}
@@ -608,6 +663,7 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
             arrays.reattach(b)
         arrays.smooth(0.5 * settings.smoothing_mm, step)
     _smooth_radii(arrays, settings.radius_smoothing_mm, step)
+    arrays, rerooted_mm = _rooted_at_ostium(arrays, settings)
     timings["fit"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -615,5 +671,5 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     timings["ends"] = time.perf_counter() - start
     build = TreeBuild(skeleton=skeleton_info, points_fitted=len(arrays.points), unseen_leaves_removed=removed,
                       seen_share=tuple(float(x) for x in seen.mean(axis=1)), unseen_points=int(held.sum()),
-                      tips_moved_mm=tuple(moved), timings_s=timings)
+                      tips_moved_mm=tuple(moved), rerooted_mm=rerooted_mm, timings_s=timings)
     return tree, build

@@ -45,7 +45,7 @@ from ..errors import TreeError
 from .model import Branch, VesselTree
 from .voxels import neighbour_edges
 
-__all__ = ["SkeletonSettings", "SkeletonInfo", "tree_from_skeleton"]
+__all__ = ["SkeletonSettings", "SkeletonInfo", "tree_from_skeleton", "rerooted"]
 
 @dataclass(frozen=True)
 class SkeletonSettings:
@@ -310,6 +310,43 @@ def _branches_from(points: np.ndarray, radius: np.ndarray, neighbours: list[list
     if len(kept) != len(branches):  # pragma: no cover - a child always has its first step
         raise TreeError("internal: a branch of the skeleton's tree was empty")
     return VesselTree(tuple(kept))
+
+
+def rerooted(tree: VesselTree, branch: int, point: int, *, window_mm: float = 3.0) -> VesselTree:
+    """The same points and radii as a tree rooted at point ``point`` of branch ``branch``.
+
+    The tree's points become a graph (consecutive points of a branch, and each child's first point
+    with its parent point, merged where they coincide); its branches are then traced again from
+    the new root as in step 5 of the module notes (at a junction, and at an interior root, a
+    branch continues into the neighbour that best continues it, judged over ``window_mm``; the
+    others start children). Branch names are ``b0, b1, ...`` in the new order.
+    """
+    offsets = np.concatenate([[0], np.cumsum([b.n_points for b in tree.branches])]).astype(np.int64)
+    points, radius, _ = tree.points()
+    node = np.arange(len(points))
+    for i, b in enumerate(tree.branches):
+        if b.parent is not None:
+            anchor = offsets[b.parent] + b.parent_point
+            if np.linalg.norm(points[offsets[i]] - points[anchor]) <= 1e-9:
+                node[offsets[i]] = node[anchor]
+    neighbours: list[list[int]] = [[] for _ in range(len(points))]
+
+    def join(u: int, v: int) -> None:
+        u, v = int(node[u]), int(node[v])
+        if u != v and v not in neighbours[u]:
+            neighbours[u].append(v)
+            neighbours[v].append(u)
+
+    steps = []
+    for i, b in enumerate(tree.branches):
+        for k in range(offsets[i], offsets[i + 1] - 1):
+            join(k, k + 1)
+        steps.append(np.linalg.norm(np.diff(b.points_mm, axis=0), axis=1))
+        if b.parent is not None:
+            join(offsets[b.parent] + b.parent_point, offsets[i])
+    spacing = float(np.median(np.concatenate(steps))) if steps else 1.0
+    root = int(node[offsets[branch] + point])
+    return _branches_from(points, radius, neighbours, root, window_mm, spacing)
 
 
 def _follow(neighbours: list[list[int]], visited: np.ndarray, start: int, first: int, nodes: int) -> list[int]:

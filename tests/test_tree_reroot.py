@@ -1,0 +1,69 @@
+"""Re-rooting a vessel tree (:func:`angiohull.tree.skeleton.rerooted`) on hand-built trees."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from angiohull.tree import Branch, VesselTree
+from angiohull.tree.skeleton import rerooted
+
+
+def _y_tree() -> VesselTree:
+    """A: (0,0,0) -> (20,0,0), radius 2 -> 1; B leaves A's point at x = 10 along +y for 10 mm."""
+    x = np.arange(0.0, 20.0 + 1e-9, 0.5)
+    a = Branch(np.column_stack([x, 0 * x, 0 * x]), 2.0 - x / 20.0, name="A")
+    y = np.arange(0.0, 10.0 + 1e-9, 0.5)
+    b = Branch(np.column_stack([10.0 + 0 * y, y, 0 * y]), 0.8, parent=0, parent_point=20, name="B")
+    return VesselTree((a, b))
+
+
+def _points(tree: VesselTree) -> set[tuple[float, float, float]]:
+    return {tuple(np.round(p, 9)) for b in tree.branches for p in b.points_mm}
+
+
+def test_rooted_at_a_leaf_end_reverses_the_path_to_it():
+    tree = _y_tree()
+    new = rerooted(tree, 1, tree.branches[1].n_points - 1)
+    root = new.root
+    np.testing.assert_allclose(root.points_mm[0], [10.0, 10.0, 0.0])
+    # down B to the junction, then on to the wider side (x = 0, radius 2), the other side a child there
+    np.testing.assert_allclose(root.points_mm[-1], [0.0, 0.0, 0.0])
+    assert root.length_mm == pytest.approx(20.0)
+    assert new.n_branches == 2
+    child = new.branches[1]
+    assert child.parent == 0 and np.allclose(root.points_mm[child.parent_point], [10.0, 0.0, 0.0])
+    np.testing.assert_allclose(child.points_mm[-1], [20.0, 0.0, 0.0])
+    # the same points (the junction point once) and radii, the same total length
+    assert _points(new) == _points(tree)
+    assert new.length_mm == pytest.approx(tree.length_mm)
+    radius: dict = {}  # where a child's first point is its parent's point, the parent's radius stays
+    for b in tree.branches:
+        for p, r in zip(b.points_mm, b.radius_mm):
+            radius.setdefault(tuple(np.round(p, 9)), r)
+    for b in new.branches:
+        for p, r in zip(b.points_mm, b.radius_mm):
+            assert r == pytest.approx(radius[tuple(np.round(p, 9))])
+
+
+def test_rooted_inside_a_branch_carries_on_to_the_wider_side():
+    tree = _y_tree()
+    new = rerooted(tree, 0, 10)  # x = 5
+    root = new.root
+    np.testing.assert_allclose(root.points_mm[0], [5.0, 0.0, 0.0])
+    np.testing.assert_allclose(root.points_mm[-1], [0.0, 0.0, 0.0])  # the wider side
+    assert new.n_branches == 3
+    other = [b for b in new.branches[1:] if b.parent == 0]
+    assert len(other) == 1 and other[0].parent_point == 0
+    np.testing.assert_allclose(other[0].points_mm[-1], [20.0, 0.0, 0.0])
+    assert new.length_mm == pytest.approx(tree.length_mm)
+    assert _points(new) == _points(tree)
+
+
+def test_rooted_where_it_is_already_rooted_keeps_the_tree():
+    tree = _y_tree()
+    new = rerooted(tree, 0, 0)
+    assert new.n_branches == 2
+    for a, b in zip(new.branches, tree.branches):
+        np.testing.assert_allclose(a.points_mm, b.points_mm)
+        assert a.parent == b.parent and a.parent_point == b.parent_point
