@@ -91,7 +91,8 @@ def _generated(task: tuple[str, int]) -> list[dict]:
             scores = tree_scores(result.tree, truth).as_dict()
             row.update({k: scores[k] for k in KEYS})
             build = result.tree_build.skeleton
-            row.update({"parts_bridged": build.parts_bridged, "parts_dropped": build.parts_dropped})
+            row.update({"parts_bridged": build.parts_bridged, "parts_dropped": build.parts_dropped,
+                        "root_offset_mm": float(np.linalg.norm(result.tree.root.points_mm[0] - truth.root.points_mm[0]))})
         rows.append(row)
     return rows
 
@@ -256,8 +257,8 @@ def _generated_section(rows: list[dict], trees: int) -> list[str]:
              "Mean ± sd over the trees (median in brackets). Shares in [0, 1]; distances and radii in mm.", "",
              "| trees | preset | Dice3D % | centerline mean | centerline p95 | Ot(1 mm) | Ot(1 mm) reverse | clDice | "
              "radius MAE | radius bias | branch recall | branch precision | bifurcations matched / true | "
-             "bifurcation error | tree s |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "bifurcation error | root start to the ostium | tree s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for kind in ("rca", "left", "all"):
         for preset in PRESETS:
             group = [r for r in rows if r["preset"] == preset and (kind == "all" or r["kind"] == kind)]
@@ -270,6 +271,7 @@ def _generated_section(rows: list[dict], trees: int) -> list[str]:
                          f"{cell('centerline_p95_mm')} | {cell('ot1mm')} | {cell('ot1mm_reverse')} | {cell('cldice')} | "
                          f"{cell('radius_mae_mm')} | {cell('radius_bias_mm')} | {cell('branch_recall')} | "
                          f"{cell('branch_precision')} | {matched} / {true} | {cell('bifurcation_error_mm')} | "
+                         f"{cell('root_offset_mm')}, {sum(r['root_offset_mm'] > 10 for r in built)} over 10 | "
                          f"{_median(r['tree_s'] for r in group)} |")
     refined = [r for r in rows if r["preset"] == "refined" and r.get("centerline_mean_mm") is not None]
     lines += ["", "Targets (refined preset, 3 views, every generated tree):", ""]
