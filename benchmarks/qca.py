@@ -351,6 +351,17 @@ def markdown(summary: dict, meta: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _rounded(value, digits: int = 5):
+    """Floats to ``digits`` decimals (the raw rows stay small enough to commit)."""
+    if isinstance(value, float):
+        return round(value, digits) if math.isfinite(value) else value
+    if isinstance(value, dict):
+        return {k: _rounded(v, digits) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_rounded(v, digits) for v in value]
+    return value
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trees", type=int, default=30, help="trees of each kind (default 30)")
@@ -381,8 +392,8 @@ def main() -> None:
     text = markdown(summary, meta)
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(text)
-    args.output.with_suffix(".json").write_text(json.dumps({"meta": meta, "summary": summary, "rows": rows},
-                                                           indent=1, allow_nan=True))
+    args.output.with_suffix(".json").write_text(json.dumps(_rounded({"meta": meta, "summary": summary, "rows": rows}),
+                                                           separators=(",", ":"), allow_nan=True))
     print(text)
 
 
