@@ -246,6 +246,7 @@ def test_evaluate_with_calibrate_reports_the_shifts(tmp_path, capsys):
     assert calibrated["dice3d"] > plain["dice3d"] + 20
 
 
+@pytest.mark.slow  # about 20 s on an idle 2-core machine: the default suite stays under 5 minutes
 def test_a_scaled_view_is_found_with_estimate_scale_and_the_hull_restored(tmp_path, capsys):
     # Clinical views; view 0's mask content scaled by 0.9 about the image centre (= its principal
     # point), unknown to the method. Measured (seeds 0-3, factors 0.9 and 1.1): the scale within
