@@ -8,7 +8,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import QcaError, TreeError
+from ..errors import QcaError
 from ..geometry import Projection
 from ..tree import VesselTree
 from .bifurcations import BifurcationAnalysis, BifurcationSettings, analyse_bifurcations
@@ -260,7 +260,4 @@ def _mean_along(values: np.ndarray, arc: np.ndarray) -> float:
 def segment_view_map(tree: VesselTree, branch: int, start_mm: float | None = None, end_mm: float | None = None,
                      settings: QcaSettings = QcaSettings()) -> ViewMap:
     """The working-view map of a chosen segment (:func:`.views.view_map`)."""
-    try:
-        return view_map(_check_tree(tree), branch, start_mm, end_mm, settings.view_map)
-    except TreeError as exc:  # pragma: no cover - the tree was validated at construction
-        raise QcaError(str(exc)) from None
+    return view_map(_check_tree(tree), branch, start_mm, end_mm, settings.view_map)
