@@ -1,0 +1,142 @@
+"""Guo–Hall thinning of binary images, vectorised over the pixels that can change.
+
+Guo & Hall, "Parallel thinning with two-subiteration algorithms", Comm. ACM 32(3), 1989, algorithm
+A1. Notation (the paper's figure 1, with row index growing downward)::
+
+    p9 p2 p3
+    p8 p1 p4
+    p7 p6 p5
+
+A foreground pixel p1 is deleted in a subiteration when all of these hold:
+
+- C(p1) = 1, with C = [~p2 & (p3 | p4)] + [~p4 & (p5 | p6)] + [~p6 & (p7 | p8)] + [~p8 & (p9 | p2)];
+- 2 <= N(p1) <= 3, with N = min(N1, N2), N1 = (p9|p2) + (p3|p4) + (p5|p6) + (p7|p8),
+  N2 = (p2|p3) + (p4|p5) + (p6|p7) + (p8|p9);
+- m(p1) = 0, with m = p4 & (p2 | p3 | ~p5) in the first subiteration of each pass and
+  m = p8 & (p6 | p7 | ~p9) in the second.
+
+Every pixel of a subiteration is decided on the image as it was when the subiteration began
+(parallel thinning); passes repeat until one deletes nothing. This subiteration order is the one of
+the ``guo_hall`` of the cv-algorithms package, which the paper's authors thin with: on their 48
+synthetic studies this gives their skeletons pixel for pixel (``tests/test_thinning.py``).
+OpenCV's ``ximgproc.thinning(THINNING_GUOHALL)`` runs the two subiterations in the other order
+(its skeletons of those masks share about 60 % of their pixels with the authors'), and
+``skimage.morphology.thin`` uses a different rule table (3 of the 48 studies differ by 10-17
+pixels).
+
+The image outside the array is background (pixels on the array's edge are thinned like any other).
+
+Speed: only pixels with a background 4-neighbour can be deleted (C = 1 needs one), and a pixel's
+decision changes only when its 3x3 neighbourhood or the subiteration changes, so each subiteration
+looks at the pixels it may delete (those whose neighbourhood changed in the last two subiterations)
+through a 256-entry table of the rule. A 512 x 512 vessel mask thins in about 2 ms, against about
+38 ms for ``skimage.morphology.thin``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["guo_hall_thin", "GUO_HALL_TABLES"]
+
+
+def _rule_tables() -> np.ndarray:
+    """(2, 256) bool: whether p1 is deleted in subiteration 0 / 1, indexed by the neighbourhood code
+    sum(p_k << (k - 2)) for k = 2..9."""
+    code = np.arange(256)
+    p2, p3, p4, p5, p6, p7, p8, p9 = (((code >> bit) & 1).astype(bool) for bit in range(8))
+    c = ((~p2 & (p3 | p4)).astype(int) + (~p4 & (p5 | p6)) + (~p6 & (p7 | p8)) + (~p8 & (p9 | p2)))
+    n1 = (p9 | p2).astype(int) + (p3 | p4) + (p5 | p6) + (p7 | p8)
+    n2 = (p2 | p3).astype(int) + (p4 | p5) + (p6 | p7) + (p8 | p9)
+    n = np.minimum(n1, n2)
+    common = (c == 1) & (n >= 2) & (n <= 3)
+    m_first = p4 & (p2 | p3 | ~p5)
+    m_second = p8 & (p6 | p7 | ~p9)
+    return np.stack([common & ~m_first, common & ~m_second])
+
+
+GUO_HALL_TABLES = _rule_tables()
+"""(2, 256) bool: the deletion rule of each subiteration by neighbourhood code (see the module notes)."""
+
+
+def guo_hall_thin(mask: np.ndarray, *, keep_edge: bool = False) -> np.ndarray:
+    """One-pixel-wide skeleton of a binary image by Guo–Hall thinning (see the module notes).
+
+    Parameters
+    ----------
+    mask : (rows, cols) array
+        Nonzero = foreground.
+    keep_edge : bool, keyword-only
+        Never delete the pixels on the array's edge (first and last row and column), as the
+        authors' thinning does (cv-algorithms' ``guo_hall`` only visits the interior pixels); a
+        vessel that leaves the image then keeps its cross-section on the edge. Default False:
+        edge pixels are thinned like the others, the outside counting as background.
+
+    Returns
+    -------
+    (rows, cols) bool array
+        The skeleton, a subset of the foreground.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> bar = np.zeros((5, 9), dtype=bool); bar[1:4, 1:8] = True
+    >>> guo_hall_thin(bar).astype(int)
+    array([[0, 0, 0, 0, 0, 0, 0, 0, 0],
+           [0, 0, 0, 0, 0, 0, 0, 0, 0],
+           [0, 0, 1, 1, 1, 1, 1, 0, 0],
+           [0, 0, 0, 0, 0, 0, 0, 0, 0],
+           [0, 0, 0, 0, 0, 0, 0, 0, 0]])
+    """
+    mask = np.asarray(mask)
+    if mask.ndim != 2:
+        raise ValueError(f"guo_hall_thin expects a 2D image, got shape {mask.shape}")
+    rows, cols = mask.shape
+    out = np.zeros((rows, cols), dtype=bool)
+    foreground = mask != 0
+    hit_rows, hit_cols = np.nonzero(foreground.any(axis=1))[0], np.nonzero(foreground.any(axis=0))[0]
+    if len(hit_rows) == 0:
+        return out
+    r0, r1, c0, c1 = hit_rows[0], hit_rows[-1] + 1, hit_cols[0], hit_cols[-1] + 1
+    # the bounding box with a background margin of one pixel, flattened
+    width = c1 - c0 + 2
+    image = np.zeros((r1 - r0 + 2, width), dtype=np.uint8)
+    image[1:-1, 1:-1] = foreground[r0:r1, c0:c1]
+    flat = image.ravel()
+    # offsets of p2..p9 and their bit in the code
+    offsets = np.array([-width, -width + 1, 1, width + 1, width, width - 1, -1, -width - 1], dtype=np.int64)
+    four = offsets[[0, 2, 4, 6]]
+    pixels = np.flatnonzero(flat)
+    frozen = None
+    if keep_edge and (r0 == 0 or c0 == 0 or r1 == rows or c1 == cols):
+        edge = np.zeros((rows, cols), dtype=bool)
+        edge[[0, -1], :] = True
+        edge[:, [0, -1]] = True
+        frozen = np.zeros(image.shape, dtype=bool)
+        frozen[1:-1, 1:-1] = edge[r0:r1, c0:c1]
+        frozen = frozen.ravel()
+        pixels = pixels[~frozen[pixels]]
+    # pixels that may be deleted: foreground with a background 4-neighbour
+    candidates = pixels[(flat[pixels[:, None] + four[None, :]] == 0).any(axis=1)]
+    recent: list[np.ndarray] = [candidates, candidates]  # pixels to look at, from the last two subiterations
+    changed_in_pass = 0
+    subiteration = 0
+    while True:
+        look = np.unique(np.concatenate(recent)) if len(recent[0]) + len(recent[1]) else recent[0]
+        look = look[flat[look] != 0] if frozen is None else look[(flat[look] != 0) & ~frozen[look]]
+        if len(look):
+            code = np.packbits(flat[look[:, None] + offsets[None, :]], axis=1, bitorder="little")[:, 0]
+            deleted = look[GUO_HALL_TABLES[subiteration][code]]
+        else:
+            deleted = look
+        flat[deleted] = 0
+        changed_in_pass += len(deleted)
+        touched = (deleted[:, None] + offsets[None, :]).ravel()
+        recent = [recent[1], touched[flat[touched] != 0]]
+        if subiteration == 1:
+            if changed_in_pass == 0:
+                break
+            changed_in_pass = 0
+        subiteration = 1 - subiteration
+    out[r0:r1, c0:c1] = image[1:-1, 1:-1].astype(bool)
+    return out
