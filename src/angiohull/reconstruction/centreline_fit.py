@@ -44,7 +44,7 @@ from typing import Sequence
 import numpy as np
 from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
-from skimage.morphology import thin
+from ..thinning import guo_hall_thin as thin
 
 from ..geometry import Projection
 from .epipolar import EpipolarPencil, ray_directions

@@ -63,7 +63,7 @@ from typing import Sequence
 import numpy as np
 from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
-from skimage.morphology import thin
+from ..thinning import guo_hall_thin as thin
 
 from ..geometry import Projection
 from .cube import Lattice
@@ -142,52 +142,60 @@ def _axis_pieces(axis_local: np.ndarray, shape: tuple[int, ...], branch_per_view
     return piece.ravel()
 
 
-def _leaves_hull(p: np.ndarray, q: np.ndarray, hull: np.ndarray, to_local, step_cells: float = 0.5) -> np.ndarray:
-    """(K,) bool: the straight segment from p[k] to q[k] (mm) passes a lattice point outside ``hull``
-    (sampled every ``step_cells`` lattice spacings, each sample rounded to its nearest lattice point)."""
-    length_cells = np.linalg.norm(to_local(q, rounded=False) - to_local(p, rounded=False), axis=1)
-    steps = np.maximum(np.ceil(length_cells / step_cells).astype(np.int64), 1)
+def _leaves_hull(p: np.ndarray, q: np.ndarray, hull: np.ndarray, block: int = 16) -> np.ndarray:
+    """(K,) bool: the straight segment between the lattice points p[k] and q[k] ((K, 3) integer
+    indices into ``hull``) passes a lattice point outside ``hull``: sampled every half lattice
+    spacing, each sample rounded to its nearest lattice point (half-way to the even index).
+
+    Every sample lies in the box of its segment's ends, so inside the volume. The samples of the
+    segments still without a gap are taken ``block`` steps at a time."""
+    delta = (q - p).astype(np.float64)
+    steps = np.maximum(np.ceil(2.0 * np.sqrt((delta * delta).sum(axis=1))).astype(np.int64), 1)
+    strides = np.array(hull.strides, dtype=np.int64) // hull.itemsize
+    flat = hull.ravel()
+    start_index = p @ strides
     gap = np.zeros(len(p), dtype=bool)
-    for k in range(1, int(steps.max(initial=1))):
-        active = np.flatnonzero((k < steps) & ~gap)
-        if len(active) == 0:
-            break
-        t = (k / steps[active])[:, None]
-        local = to_local(p[active] + t * (q[active] - p[active]))
-        inside = np.all((local >= 0) & (local < hull.shape), axis=1)
-        inside[inside] = hull[tuple(local[inside].T)]
-        gap[active[~inside]] = True
+    active = np.flatnonzero(steps > 1)
+    start = 1
+    while len(active):
+        count = np.minimum(steps[active] - start, block)  # samples of each active segment in this block
+        segment = np.repeat(active, count)
+        k = start + np.arange(len(segment)) - np.repeat(np.cumsum(count) - count, count)
+        offset = np.rint(delta[segment] * (k / steps[segment])[:, None]).astype(np.int64)
+        outside = ~flat[start_index[segment] + offset @ strides]
+        gap[segment[outside]] = True
+        start += block
+        active = active[~gap[active] & (steps[active] > start)]
     return gap
 
 
 def _rivals(axis_uv: np.ndarray, reach_px: np.ndarray, axis_points: np.ndarray, axis_piece: np.ndarray,
-            tube_uv: np.ndarray, tube_points: np.ndarray, tube_piece: np.ndarray, hull: np.ndarray,
-            to_local) -> tuple[np.ndarray, np.ndarray]:
+            tube_uv: np.ndarray, tube_points: np.ndarray, tube_piece: np.ndarray,
+            hull: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One view's rivals: the pairs (axis point index, piece) such that a hull point of that other
-    piece projects within the axis point's reach and is separated from it by a gap in the hull.
-    Each pair once. (Per pair, the farthest such hull point is tried first: it is the one most likely
-    across a gap; the others only when it is not.)"""
-    hits = cKDTree(tube_uv).query_ball_point(axis_uv, reach_px)
-    counts = np.fromiter((len(h) for h in hits), dtype=np.int64, count=len(hits))
-    if counts.sum() == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    axis_index = np.repeat(np.arange(len(axis_uv)), counts)
-    tube_index = np.concatenate([np.asarray(h, dtype=np.int64) for h in hits])
+    piece projects within the axis point's reach (closed) and is separated from it by a gap in the
+    hull. Each pair once. (Per pair, the farthest such hull point is tried first, the lowest index
+    of equally far ones: it is the one most likely across a gap; the others only when it is not.)
+    ``axis_points`` and ``tube_points`` are (n, 3) integer lattice indices into the volume
+    ``hull``."""
+    pairs = cKDTree(axis_uv).sparse_distance_matrix(cKDTree(tube_uv), float(reach_px.max()), output_type="ndarray")
+    axis_index, tube_index = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
     rival_piece = tube_piece[tube_index]
-    other = rival_piece != axis_piece[axis_index]
-    axis_index, tube_index, rival_piece = axis_index[other], tube_index[other], rival_piece[other]
+    keep = (rival_piece != axis_piece[axis_index]) & (pairs["v"] <= reach_px[axis_index])
+    axis_index, tube_index, rival_piece = axis_index[keep], tube_index[keep], rival_piece[keep]
     if len(axis_index) == 0:
         return axis_index, rival_piece
-    distance = np.linalg.norm(tube_points[tube_index] - axis_points[axis_index], axis=1)
-    order = np.lexsort((-distance, rival_piece, axis_index))
+    offset = (tube_points[tube_index] - axis_points[axis_index]).astype(np.float64)
+    distance = (offset * offset).sum(axis=1)  # squared, in lattice spacings
+    order = np.lexsort((tube_index, -distance, rival_piece, axis_index))
     axis_index, tube_index, rival_piece = axis_index[order], tube_index[order], rival_piece[order]
     group_start = np.r_[True, (np.diff(axis_index) != 0) | (np.diff(rival_piece) != 0)]
     group = np.cumsum(group_start) - 1
     first = np.flatnonzero(group_start)
-    apart = _leaves_hull(axis_points[axis_index[first]], tube_points[tube_index[first]], hull, to_local)
+    apart = _leaves_hull(axis_points[axis_index[first]], tube_points[tube_index[first]], hull)
     rest = np.flatnonzero(~group_start & ~apart[group])
     if len(rest):
-        rest_apart = _leaves_hull(axis_points[axis_index[rest]], tube_points[tube_index[rest]], hull, to_local)
+        rest_apart = _leaves_hull(axis_points[axis_index[rest]], tube_points[tube_index[rest]], hull)
         apart[group[rest[rest_apart]]] = True
     return axis_index[first[apart]], rival_piece[first[apart]]
 
@@ -271,7 +279,7 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
     info = {"components_removed": 0, "pieces_removed": 0, "radius_removed": 0}
     if len(points_mm) == 0:
         return points_mm, info
-    big, radius, axis = _axis_points(points_mm, lattice, projections, masks, settings, info)
+    big, radius, axis, nearest = _axis_points(points_mm, lattice, projections, masks, settings, info)
     candidates = points_mm[big]
     if axis is None:
         return candidates, info
@@ -279,7 +287,7 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
         info["radius_removed"] = len(candidates)
         return candidates[:0], info
     # radius consistency: keep hull points within the radius of their nearest (kept) axis point
-    _, in_tube = _radius_tube(candidates, radius, axis, settings.slack_cells * lattice.spacing_mm)
+    _, in_tube = _radius_tube(candidates, radius, axis, settings.slack_cells * lattice.spacing_mm, nearest)
     keep = np.zeros(len(points_mm), dtype=bool)
     keep[np.flatnonzero(big)[in_tube]] = True
     info["radius_removed"] = int((~in_tube).sum())
@@ -298,26 +306,62 @@ def tube_axis(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     """
     if len(points_mm) == 0:
         return np.zeros((0, 3)), np.zeros(0)
-    big, radius, axis = _axis_points(points_mm, lattice, projections, masks, settings, {})
+    big, radius, axis, _ = _axis_points(points_mm, lattice, projections, masks, settings, {})
     if axis is None:
         return np.zeros((0, 3)), np.zeros(0)
     return points_mm[big][axis], radius[axis]
 
 
-def _radius_tube(candidates: np.ndarray, radius: np.ndarray, axis: np.ndarray,
-                 slack_mm: float) -> tuple[np.ndarray, np.ndarray]:
-    """(nearest axis point, within its radius + slack) of every candidate."""
-    distance, owner = cKDTree(candidates[axis]).query(candidates)
+def _grown(volume: np.ndarray, cells: int) -> np.ndarray:
+    """``volume`` grown by ``cells`` lattice spacings in the 26-neighbourhood (binary dilation by a
+    cube), one axis at a time."""
+    grown = volume.copy()
+    for _ in range(cells):
+        for axis in range(grown.ndim):
+            moved = np.moveaxis(grown, axis, 0)
+            before = moved.copy()
+            moved[1:] |= before[:-1]
+            moved[:-1] |= before[1:]
+    return grown
+
+
+def _box(mask: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[tuple[int, int], tuple[int, int]]:
+    """(row, col) start and stop of the box that holds the mask's pixels and (rows, cols), grown by
+    one pixel (within the image)."""
+    hit_rows, hit_cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    low = [rows.min(initial=mask.shape[0]), cols.min(initial=mask.shape[1])]
+    high = [rows.max(initial=-1), cols.max(initial=-1)]
+    if len(hit_rows):
+        low = [min(low[0], hit_rows[0]), min(low[1], hit_cols[0])]
+        high = [max(high[0], hit_rows[-1]), max(high[1], hit_cols[-1])]
+    start = (max(int(low[0]) - 1, 0), max(int(low[1]) - 1, 0))
+    stop = (min(int(high[0]) + 2, mask.shape[0]), min(int(high[1]) + 2, mask.shape[1]))
+    return start, stop
+
+
+def _radius_tube(candidates: np.ndarray, radius: np.ndarray, axis: np.ndarray, slack_mm: float,
+                 nearest: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(nearest axis point, within its radius + slack) of every candidate. ``nearest``: (distance,
+    position in ``axis``) of the candidates' nearest axis points where already known (position -1
+    where not), e.g. from a query of more axis points whose nearest is among these."""
+    if nearest is None:
+        distance, owner = cKDTree(candidates[axis]).query(candidates)
+    else:
+        distance, owner = nearest[0].copy(), nearest[1].copy()
+        unknown = np.flatnonzero(owner < 0)
+        if len(unknown):
+            distance[unknown], owner[unknown] = cKDTree(candidates[axis]).query(candidates[unknown])
     return owner, distance <= radius[axis][owner] + slack_mm
 
 
 def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Projection],
                  masks: Sequence[np.ndarray], settings: RefineSettings,
-                 info: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Steps 2-4 of the module notes: ``(big, radius, axis)``. ``big`` marks the points in large
-    enough parts (the candidates), ``radius`` is each candidate's radius (mm) and ``axis`` the
-    indices of the kept axis points among the candidates (None when no candidate is an axis
-    point). Fills the counts of ``info``."""
+                 info: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, tuple | None]:
+    """Steps 2-4 of the module notes: ``(big, radius, axis, nearest)``. ``big`` marks the points in
+    large enough parts (the candidates), ``radius`` is each candidate's radius (mm) and ``axis``
+    the indices of the kept axis points among the candidates (None when no candidate is an axis
+    point); ``nearest`` is what is known of each candidate's nearest kept axis point (see
+    :func:`_radius_tube`), or None. Fills the counts of ``info``."""
     h = lattice.spacing_mm
     ijk = np.round((points_mm + lattice.half_edge_mm) / h).astype(np.int64)
     low = ijk.min(axis=0) - 2
@@ -325,19 +369,12 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
     volume = np.zeros(tuple(local.max(axis=0) + 3), dtype=bool)
     volume[tuple(local.T)] = True
 
-    def to_local(mm: np.ndarray, rounded: bool = True) -> np.ndarray:
-        index = (mm + lattice.half_edge_mm) / h
-        return np.round(index).astype(np.int64) - low if rounded else index
-
     # 2. connectivity
-    bridged = volume
-    if settings.bridge_cells:
-        bridged = ndi.binary_dilation(volume, _TWENTY_SIX, iterations=settings.bridge_cells)
+    bridged = _grown(volume, settings.bridge_cells)
     labels, _ = ndi.label(bridged, structure=_TWENTY_SIX)
-    labels[~volume] = 0
-    sizes = np.bincount(labels.ravel())
-    sizes[0] = 0
-    big = sizes[labels[tuple(local.T)]] >= settings.component_fraction * len(points_mm)
+    point_labels = labels[tuple(local.T)]
+    sizes = np.bincount(point_labels)
+    big = sizes[point_labels] >= settings.component_fraction * len(points_mm)
     info["components_removed"] = int((~big).sum())
     # 3. axis points: hull points whose projection lies on (within a lattice cell of) the 2D
     # centreline in at least axis_views views; each gets the smallest radius the views show there.
@@ -347,37 +384,51 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
     views = []
     for projection, mask in zip(projections, masks):
         mask = np.asarray(mask, dtype=bool)
-        inside = ndi.distance_transform_edt(mask)
-        centreline = thin(mask)
-        off_centre, nearest = ndi.distance_transform_edt(~centreline, return_indices=True)
         uv = projection.project(candidates)
         px_per_mm = max(projection.focal_lengths_px) / projection.depth_mm(candidates)
         cols = np.clip(np.floor(uv[:, 0] + 0.5).astype(np.int64), 0, mask.shape[1] - 1)
         rows = np.clip(np.floor(uv[:, 1] + 0.5).astype(np.int64), 0, mask.shape[0] - 1)
+        # the image maps below are computed on the box around the mask and the candidates' pixels,
+        # grown by a background pixel: the same values as on the whole image (thinning sees only
+        # 3x3 neighbourhoods; the nearest background pixel of a vessel pixel is never beyond the
+        # ring of background around the box; every centreline pixel is inside it)
+        (r0, c0), (r1, c1) = _box(mask, rows, cols)
+        crop = mask[r0:r1, c0:c1]
+        local_rows, local_cols = rows - r0, cols - c0
+        inside = ndi.distance_transform_edt(crop)
+        centreline = thin(crop)
+        off_centre, nearest = ndi.distance_transform_edt(~centreline, return_indices=True)
         reach_px = 0.5 * np.sqrt(3.0) * h * px_per_mm + 0.5
-        on_axis_views += off_centre[rows, cols] <= reach_px
+        on_axis_views += off_centre[local_rows, local_cols] <= reach_px
         # half-width at the nearest centreline pixel; the distance to the nearest background pixel
         # centre overshoots the edge (half-way between pixel centres) by 0.5 px
-        centre_rows, centre_cols = nearest[0, rows, cols], nearest[1, rows, cols]
+        centre_rows, centre_cols = nearest[0, local_rows, local_cols], nearest[1, local_rows, local_cols]
         half_width = inside[centre_rows, centre_cols] - 0.5
         radius = np.minimum(radius, half_width / px_per_mm)
         views.append((uv, reach_px, centreline, centre_rows, centre_cols))
     near_axis = on_axis_views >= min(settings.axis_views, len(projections))
     if not near_axis.any():
-        return big, radius, None
+        return big, radius, None, None
     axis = np.flatnonzero(near_axis)
+    nearest = None
     # 4. explanation: drop axis pieces whose pixels other pieces explain in every view
     if settings.unique_fraction > 0:
-        owner, in_tube = _radius_tube(candidates, radius, axis, settings.slack_cells * h)
+        distance, owner = cKDTree(candidates[axis]).query(candidates)
+        owner, in_tube = _radius_tube(candidates, radius, axis, settings.slack_cells * h, (distance, owner))
         piece = _axis_pieces(local[big][axis], volume.shape,
                              [centreline_branches(c)[r[axis], k[axis]] for _, _, c, r, k in views])
         tube = np.flatnonzero(in_tube)
         tube_piece = piece[owner[tube]]
         hull = np.zeros_like(volume)
         hull[tuple(local[big].T)] = True
-        rivals = [_rivals(uv[axis], reach[axis], candidates[axis], piece, uv[tube], candidates[tube], tube_piece,
-                          hull, to_local) for uv, reach, *_ in views]
+        candidate_local = local[big]
+        rivals = [_rivals(uv[axis], reach[axis], candidate_local[axis], piece, uv[tube], candidate_local[tube],
+                          tube_piece, hull) for uv, reach, *_ in views]
         kept = drop_explained_pieces(piece, rivals, settings.unique_fraction)
         info["pieces_removed"] = int((~kept).sum())
-        axis = axis[kept[piece]]
-    return big, radius, axis
+        kept_axis = kept[piece]
+        # a candidate whose nearest axis point is kept has it as its nearest kept one too
+        position = np.cumsum(kept_axis) - 1
+        nearest = (np.where(kept_axis[owner], distance, np.inf), np.where(kept_axis[owner], position[owner], -1))
+        axis = axis[kept_axis]
+    return big, radius, axis, nearest
