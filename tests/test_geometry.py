@@ -223,3 +223,30 @@ def test_jacobian_matches_central_differences():
                          for e in np.eye(3)], axis=2)
     assert projection.jacobian(points).shape == (20, 2, 3)
     np.testing.assert_allclose(projection.jacobian(points), expected, rtol=1e-7, atol=1e-9)
+
+
+def test_every_storage_of_a_view_has_the_same_canonical_image():
+    import itertools
+
+    from angiohull.geometry import ImageStorage, canonical_storage
+
+    rng = np.random.default_rng(5)
+    for _ in range(10):
+        carm = CArmGeometry(rng.uniform(-120, 120), rng.uniform(-45, 45), 1100.0, rng.uniform(600, 800),
+                            (0.3, 0.4), (60, 70), tuple(rng.uniform(-5, 5, 2)))
+        projection, image = carm.projection(), rng.random((60, 70))
+        points = rng.normal(size=(20, 3)) * 15
+        canonical = canonical_storage(projection)
+        reference_image, reference = canonical.apply_image(image), canonical.apply(projection)
+        for flags in itertools.product([False, True], repeat=3):
+            storage = ImageStorage(*flags)
+            stored, stored_image = storage.apply(projection), storage.apply_image(image)
+            # the same view: every point lands on the same image value
+            uv, uv_stored = projection.project(points), stored.project(points)
+            rows, cols = np.floor(uv[:, 1] + 0.5).astype(int), np.floor(uv[:, 0] + 0.5).astype(int)
+            inside = (rows >= 0) & (rows < 60) & (cols >= 0) & (cols < 70)
+            stored_rc = np.floor(uv_stored[inside][:, ::-1] + 0.5).astype(int)
+            np.testing.assert_array_equal(stored_image[tuple(stored_rc.T)], image[rows[inside], cols[inside]])
+            again = canonical_storage(stored)
+            np.testing.assert_array_equal(again.apply_image(stored_image), reference_image)
+            np.testing.assert_allclose(again.apply(stored).project(points), reference.project(points), atol=1e-9)

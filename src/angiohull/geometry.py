@@ -32,6 +32,8 @@ __all__ = [
     "parse_clinical_angles",
     "format_clinical_angles",
     "cube_half_edge_mm",
+    "ImageStorage",
+    "canonical_storage",
 ]
 
 
@@ -378,3 +380,67 @@ def cube_half_edge_mm(projections: Iterable[Projection]) -> float:
 def stack_projections(projections: Sequence[Projection]) -> np.ndarray:
     """The matrices of several views as one (V, 3, 4) array."""
     return np.stack([p.matrix for p in projections])
+
+
+_ORIENTATION_PROBE = np.array([0.8017837257372732, 0.5345224838248488, 0.2672612419124244])
+"""A fixed world direction (1, 2/3, 1/3, normalised) that decides the canonical image storage;
+generic, so that no C-arm pose puts two image axes at the same angle to it."""
+
+
+@dataclass(frozen=True)
+class ImageStorage:
+    """A way of storing a view's image: transposed first, then columns and rows reversed.
+
+    Applied to an image and to its projection together, it leaves the view (rays and pixels)
+    unchanged: ``apply_image(image)`` is the array stored that way and ``apply(projection)`` the
+    equivalent matrix.
+    """
+
+    transpose: bool = False
+    flip_cols: bool = False
+    flip_rows: bool = False
+
+    def apply_image(self, image: np.ndarray) -> np.ndarray:
+        out = np.asarray(image)
+        if self.transpose:
+            out = out.T
+        if self.flip_cols:
+            out = out[:, ::-1]
+        if self.flip_rows:
+            out = out[::-1]
+        return np.ascontiguousarray(out)
+
+    def apply(self, projection: Projection) -> Projection:
+        matrix = projection.matrix
+        rows, cols = projection.image_shape
+        if self.transpose:
+            matrix = matrix[[1, 0, 2]]
+            rows, cols = cols, rows
+        if self.flip_cols:
+            matrix = np.stack([(cols - 1) * matrix[2] - matrix[0], matrix[1], matrix[2]])
+        if self.flip_rows:
+            matrix = np.stack([matrix[0], (rows - 1) * matrix[2] - matrix[1], matrix[2]])
+        return Projection(matrix, (rows, cols))
+
+
+def canonical_storage(projection: Projection) -> ImageStorage:
+    """The storage that brings a view's image into a canonical orientation set by the geometry alone.
+
+    The world directions in which the image's column and row indices grow (the first two columns
+    of the inverse of the matrix's left 3x3 block) swap under a transpose and change sign under a
+    flip. The canonical image is the one whose column direction is, of these four, the one most
+    along a fixed generic world direction, and whose row direction points along it too. So any
+    storage of the same view (flipped, transposed, with the equivalent matrix) gives the same image
+    once brought into this orientation: steps that look at pixel neighbourhoods (thinning, ties of
+    distance transforms) give the same answer whatever the storage.
+    """
+    inverse = np.linalg.inv(projection.matrix[:, :3])
+    column, row = inverse[:, 0], inverse[:, 1]
+    options = [(column, False, False), (-column, False, True), (row, True, False), (-row, True, True)]
+    # (direction, transpose, reverse it) for the canonical column direction
+    direction, transpose, reverse_first = max(options, key=lambda o: float(o[0] @ _ORIENTATION_PROBE))
+    second = row if not transpose else column
+    reverse_second = float(second @ _ORIENTATION_PROBE) < 0
+    # after a transpose the stored columns are the old rows: reversing the canonical column
+    # direction flips the (new) columns, reversing the row direction flips the (new) rows
+    return ImageStorage(transpose=transpose, flip_cols=reverse_first, flip_rows=reverse_second)

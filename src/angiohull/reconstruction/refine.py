@@ -53,6 +53,12 @@ steps that stay interpretable:
 
    The radius check then uses the axis points of the kept pieces only, so the phantom's hull points,
    farther than a radius from any true axis point, go too.
+
+**Image storage.** The same view can be stored flipped or transposed (with the equivalent matrix).
+Thinning and the ties of a distance transform depend on the orientation of the pixel grid, so each
+image is first brought into the orientation its geometry sets
+(:func:`angiohull.geometry.canonical_storage`), and ties between equally near lattice points go to
+the lowest lattice index: the refined points are the same whatever the storage (a property test).
 """
 
 from __future__ import annotations
@@ -65,7 +71,7 @@ from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 from ..thinning import guo_hall_thin as thin
 
-from ..geometry import Projection
+from ..geometry import Projection, canonical_storage
 from .cube import Lattice
 
 __all__ = ["RefineSettings", "REFINED", "clean_mask", "refine_hull", "tube_axis", "centreline_branches",
@@ -279,19 +285,28 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
     info = {"components_removed": 0, "pieces_removed": 0, "radius_removed": 0}
     if len(points_mm) == 0:
         return points_mm, info
-    big, radius, axis, nearest = _axis_points(points_mm, lattice, projections, masks, settings, info)
-    candidates = points_mm[big]
-    if axis is None:
-        return candidates, info
-    if len(axis) == 0:
-        info["radius_removed"] = len(candidates)
-        return candidates[:0], info
-    # radius consistency: keep hull points within the radius of their nearest (kept) axis point
-    _, in_tube = _radius_tube(candidates, radius, axis, settings.slack_cells * lattice.spacing_mm, nearest)
+    # in lattice order, so that ties between equally near points do not depend on the input's order
+    order = _lattice_order(points_mm, lattice)
+    ordered = points_mm[order]
+    big, radius, axis, nearest = _axis_points(ordered, lattice, projections, masks, settings, info)
     keep = np.zeros(len(points_mm), dtype=bool)
-    keep[np.flatnonzero(big)[in_tube]] = True
+    if axis is None:
+        keep[order[big]] = True
+        return points_mm[keep], info
+    if len(axis) == 0:
+        info["radius_removed"] = int(big.sum())
+        return points_mm[:0], info
+    # radius consistency: keep hull points within the radius of their nearest (kept) axis point
+    _, in_tube = _radius_tube(ordered[big], radius, axis, settings.slack_cells * lattice.spacing_mm, nearest)
+    keep[order[np.flatnonzero(big)[in_tube]]] = True
     info["radius_removed"] = int((~in_tube).sum())
     return points_mm[keep], info
+
+
+def _lattice_order(points_mm: np.ndarray, lattice: Lattice) -> np.ndarray:
+    """The permutation that sorts lattice points by their (i, j, k) lattice indices."""
+    ijk = np.round((points_mm + lattice.half_edge_mm) / lattice.spacing_mm).astype(np.int64)
+    return np.lexsort((ijk[:, 2], ijk[:, 1], ijk[:, 0]))
 
 
 def tube_axis(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Projection],
@@ -306,10 +321,11 @@ def tube_axis(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     """
     if len(points_mm) == 0:
         return np.zeros((0, 3)), np.zeros(0)
-    big, radius, axis, _ = _axis_points(points_mm, lattice, projections, masks, settings, {})
+    ordered = points_mm[_lattice_order(points_mm, lattice)]
+    big, radius, axis, _ = _axis_points(ordered, lattice, projections, masks, settings, {})
     if axis is None:
         return np.zeros((0, 3)), np.zeros(0)
-    return points_mm[big][axis], radius[axis]
+    return ordered[big][axis], radius[axis]
 
 
 def _grown(volume: np.ndarray, cells: int) -> np.ndarray:
@@ -339,18 +355,37 @@ def _box(mask: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[tuple[in
     return start, stop
 
 
+_TIE_MM = 1e-9
+"""Points whose distances differ by less than this are equally near (lattice points often are)."""
+
+
+def _nearest_point(points: np.ndarray, query: np.ndarray, k: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """(distance, index) of the nearest of ``points`` to each query point; of equally near ones (to
+    :data:`_TIE_MM`), the lowest index, so that the answer does not depend on rounding noise."""
+    tree = cKDTree(points)
+    k = min(k, len(points))
+    distance, index = tree.query(query, k=k)
+    if k == 1:
+        return distance, index
+    tied = distance <= distance[:, :1] + _TIE_MM
+    nearest = np.where(tied, index, len(points)).min(axis=1)
+    for i in np.flatnonzero(tied[:, -1]):  # more equally near points than k: ask for all of them
+        nearest[i] = min(tree.query_ball_point(query[i], distance[i, 0] + _TIE_MM))
+    return distance[:, 0], nearest
+
+
 def _radius_tube(candidates: np.ndarray, radius: np.ndarray, axis: np.ndarray, slack_mm: float,
                  nearest: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(nearest axis point, within its radius + slack) of every candidate. ``nearest``: (distance,
     position in ``axis``) of the candidates' nearest axis points where already known (position -1
     where not), e.g. from a query of more axis points whose nearest is among these."""
     if nearest is None:
-        distance, owner = cKDTree(candidates[axis]).query(candidates)
+        distance, owner = _nearest_point(candidates[axis], candidates)
     else:
         distance, owner = nearest[0].copy(), nearest[1].copy()
         unknown = np.flatnonzero(owner < 0)
         if len(unknown):
-            distance[unknown], owner[unknown] = cKDTree(candidates[axis]).query(candidates[unknown])
+            distance[unknown], owner[unknown] = _nearest_point(candidates[axis], candidates[unknown])
     return owner, distance <= radius[axis][owner] + slack_mm
 
 
@@ -383,7 +418,10 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
     radius = np.full(len(candidates), np.inf)
     views = []
     for projection, mask in zip(projections, masks):
-        mask = np.asarray(mask, dtype=bool)
+        # each image in the orientation its geometry sets, so that thinning and the ties of the
+        # distance transforms do not depend on how the image was stored (flipped, transposed)
+        storage = canonical_storage(projection)
+        projection, mask = storage.apply(projection), storage.apply_image(np.asarray(mask, dtype=bool))
         uv = projection.project(candidates)
         px_per_mm = max(projection.focal_lengths_px) / projection.depth_mm(candidates)
         cols = np.clip(np.floor(uv[:, 0] + 0.5).astype(np.int64), 0, mask.shape[1] - 1)
@@ -413,7 +451,7 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
     nearest = None
     # 4. explanation: drop axis pieces whose pixels other pieces explain in every view
     if settings.unique_fraction > 0:
-        distance, owner = cKDTree(candidates[axis]).query(candidates)
+        distance, owner = _nearest_point(candidates[axis], candidates)
         owner, in_tube = _radius_tube(candidates, radius, axis, settings.slack_cells * h, (distance, owner))
         piece = _axis_pieces(local[big][axis], volume.shape,
                              [centreline_branches(c)[r[axis], k[axis]] for _, _, c, r, k in views])
