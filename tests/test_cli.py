@@ -127,3 +127,26 @@ def test_cuda_without_cupy_or_gpu_is_a_clear_error(tmp_path, capsys):
     study = ball_study(tmp_path / "study")
     assert main(["evaluate", str(study.parent), "-k", "20", "--device", "cuda"]) == 2
     assert "CuPy" in capsys.readouterr().err
+
+
+def test_help_imports_no_numerical_module():
+    """`angiohull --help` starts without NumPy, SciPy or matplotlib (its start-up time is measured in
+    benchmarks/pipeline.py)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, angiohull.cli as cli\n"
+            "try:\n    cli.main(['--help'])\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numpy', 'scipy', 'matplotlib', 'skimage')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip().splitlines()[-1] == "[]"
+
+
+def test_shared_names_agree_with_the_modules_that_implement_them():
+    from angiohull import options
+    from angiohull.reconstruction import ENGINES
+    from angiohull.reconstruction.refine import REFINED
+
+    assert options.ENGINE_NAMES == tuple(sorted(ENGINES))
+    assert options.AUTO_ENGINE in ENGINES
+    assert REFINED.resolution == options.REFINED_RESOLUTION

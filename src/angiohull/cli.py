@@ -12,10 +12,12 @@ from typing import Sequence, TextIO
 
 from . import __version__
 from .errors import AngiohullError, DicomGeometryWarning, QcaError, TreeWarning
-from .reconstruction import AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES, PRESETS
-from .reconstruction.refine import REFINED
-from .synthetic.render import RASTERISERS
-from .synthetic.tree import TORTUOSITY_LEVELS, TREE_KINDS
+from .options import (AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES, PRESETS, RASTERISERS,
+                      REFINED_RESOLUTION, TORTUOSITY_LEVELS, TREE_KINDS)
+
+# Only the light modules above are imported at start-up (``angiohull --help`` needs no NumPy); each
+# command imports what it uses. The options of a command that need a heavy module to be listed
+# (segmentation parameters, shipped experiments) are built only when that command is run.
 
 __all__ = ["main", "build_parser"]
 
@@ -36,7 +38,7 @@ class _Progress:
 def _add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resolution", "-k", type=int, default=None, metavar="K",
                         help=f"lattice points per axis of the cube of interest (default {DEFAULT_RESOLUTION}, "
-                             f"{REFINED.resolution} with --preset refined)")
+                             f"{REFINED_RESOLUTION} with --preset refined)")
     parser.add_argument("--threshold", type=float, default=DEFAULT_THRESHOLD_PX, metavar="PX",
                         help=f"keep a point when its projection is closer than PX to a mask pixel centre (default {DEFAULT_THRESHOLD_PX})")
     parser.add_argument("--engine", choices=ENGINE_CHOICES, default="auto",
@@ -62,8 +64,14 @@ def _add_beyond_paper_options(parser: argparse.ArgumentParser) -> None:
                         help="robust carving: keep a point when at least K views keep it (default: all, the paper)")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of the ``angiohull`` command."""
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The argument parser of the ``angiohull`` command.
+
+    With ``command``, the options of the other commands that need heavy imports to be listed are
+    left out (``main`` passes the command it was given, so ``angiohull --help`` stays quick); by
+    default every command is complete."""
+    global _FULL
+    _FULL = command
     parser = argparse.ArgumentParser(
         prog="angiohull",
         description="Visual-hull reconstruction of coronary arteries from a few X-ray angiography views "
@@ -454,8 +462,18 @@ def _cmd_qca(args) -> int:
 
 
 # -- DICOM input and segmentation: dicom-info, segment, study-from-dicom ------------------------
-def _add_segmentation_options(parser: argparse.ArgumentParser) -> None:
+_FULL: str | None = None  # the command whose options build_parser builds completely (None: all)
+
+
+def _complete(name: str) -> bool:
+    """Whether build_parser builds command ``name``'s options that need heavy imports."""
+    return _FULL is None or _FULL == name
+
+
+def _add_segmentation_options(parser: argparse.ArgumentParser, command: str) -> None:
     """One option per field of SegmentationParameters (defaults shown; see angiohull.segmentation)."""
+    if not _complete(command):
+        return
     from dataclasses import fields
 
     from .segmentation import SegmentationParameters
@@ -506,7 +524,7 @@ def _add_dicom_commands(sub) -> None:
     p.add_argument("-o", "--output", type=Path, required=True, metavar="MASK", help="the mask to write (.png, .tif, .npy)")
     p.add_argument("--frame", type=int, default=None, metavar="N",
                    help="frame index from 0 (default: the frame with the most contrast, or the end-diastolic frame nearest to it)")
-    _add_segmentation_options(p)
+    _add_segmentation_options(p, "segment")
 
     p = sub.add_parser("study-from-dicom", help="build a study folder from XA runs",
                        description="Write a study folder (study.yaml) with one view per XA file, geometry from the "
@@ -521,7 +539,7 @@ def _add_dicom_commands(sub) -> None:
     frames.add_argument("--all-frames", action="store_true", help="one view per frame (e.g. a rotational run)")
     p.add_argument("--reference", action="store_true",
                    help="refer to the files where they are (relative paths) instead of copying them into STUDY_DIR/dicom/")
-    _add_segmentation_options(p)
+    _add_segmentation_options(p, "study-from-dicom")
 
 
 def _format_spacing(frame) -> str:
@@ -616,9 +634,12 @@ class _WarningPrinter:
 
 # -- experiments and reports (self-contained block) -------------------------------------------------
 def _add_experiment_parsers(sub) -> None:
-    from .experiments.config import shipped_config_names
+    if _complete("experiment"):
+        from .experiments.config import shipped_config_names
 
-    names = ", ".join(shipped_config_names())
+        names = ", ".join(shipped_config_names())
+    else:
+        names = "see angiohull experiment --help"
     p = sub.add_parser("experiment", help="run one of the paper's experiments (or your own config), resumably",
                        description="Run every case of an experiment configuration and write one row per case to "
                                    "RUN_DIR/rows.csv as it finishes; running the same command again resumes. "
@@ -687,8 +708,10 @@ _COMMANDS.update({"experiment": _cmd_experiment, "report": _cmd_report})
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``angiohull`` command; returns the exit status (0 ok, 2 bad input)."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    arguments = list(sys.argv[1:] if argv is None else argv)
+    command = next((a for a in arguments if not a.startswith("-")), "")  # top-level options have no values
+    parser = build_parser(command)
+    args = parser.parse_args(arguments)
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _WarningPrinter()

@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 from typing import Iterable, Sequence
 
 import numpy as np
-import scipy.linalg
 
 from . import _validation as _v
 from .errors import GeometryError
@@ -141,6 +140,8 @@ class Projection:
         From an RQ decomposition of the left 3x3 block; signs of mirrored matrices are moved into
         the rotation factor so that the focal lengths come out positive.
         """
+        import scipy.linalg  # only here: importing it costs a noticeable share of a command's start
+
         k, _ = scipy.linalg.rq(self.matrix[:, :3])
         signs = np.sign(np.diag(k))
         signs[signs == 0] = 1.0

@@ -12,6 +12,7 @@ from typing import Sequence
 import numpy as np
 
 from .. import _validation as _v
+from .. import options
 from ..errors import EmptyHullError, ReconstructionError
 from ..geometry import Projection, cube_half_edge_mm
 from ..tree import VesselTree
@@ -41,16 +42,12 @@ __all__ = [
     "TreeBuild",
 ]
 
-DEFAULT_RESOLUTION = 100
-"""K of the paper's experiments."""
-DEFAULT_THRESHOLD_PX = 1.0
-"""The paper's distance threshold, pixels (strict)."""
-AUTO_ENGINE = "octree"
-"""What ``engine="auto"`` runs: the fastest engine that keeps exactly the reference's points."""
-ENGINE_CHOICES = ("auto", *sorted(ENGINES))
-PRESETS = ("paper", "refined")
-"""``reconstruct(preset=...)``: the method as published, or with the improvements of :mod:`.refine`."""
-"""Names accepted by ``reconstruct(engine=...)`` and the CLI's ``--engine``."""
+# names and defaults, defined in angiohull.options (importable without NumPy, for the command line)
+DEFAULT_RESOLUTION = options.DEFAULT_RESOLUTION
+DEFAULT_THRESHOLD_PX = options.DEFAULT_THRESHOLD_PX
+AUTO_ENGINE = options.AUTO_ENGINE
+ENGINE_CHOICES = options.ENGINE_CHOICES
+PRESETS = options.PRESETS
 
 
 @dataclass(frozen=True)

@@ -71,6 +71,7 @@ from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 from ..thinning import guo_hall_thin as thin
 
+from .. import options
 from ..geometry import Projection, canonical_storage
 from .cube import Lattice
 
@@ -82,7 +83,7 @@ __all__ = ["RefineSettings", "REFINED", "clean_mask", "refine_hull", "tube_axis"
 class RefineSettings:
     """Parameters of the ``refined`` preset."""
 
-    resolution: int = 256  # lattice points per axis (finer than the paper's 100: less thickening)
+    resolution: int = options.REFINED_RESOLUTION  # lattice points per axis (finer than the paper's 100: less thickening)
     min_neighbours: int = 2  # clean_mask: a vessel pixel needs this many vessel neighbours (of 8)
     fill_neighbours: int = 5  # clean_mask: a background pixel with this many vessel neighbours is filled
     component_fraction: float = 0.05  # drop connected parts of the hull smaller than this fraction

@@ -7,13 +7,12 @@ import numpy as np
 from ..errors import AngiohullError
 from ..geometry import Projection
 from ..rasterise import rasterise_points_paper
+from .. import options
 from .phantom import TubePhantom
 
 __all__ = ["RASTERISERS", "PAPER_SURFACE_SPACING_MM", "render_mask"]
 
-RASTERISERS: tuple[str, ...] = ("exact", "paper")
-"""``exact``: pixel set iff the ray through its centre meets the solid. ``paper``: surface points
-splatted by truncation, closed with a disk of radius 2, Gaussian sigma 0.5 thresholded at 0.25."""
+RASTERISERS = options.RASTERISERS
 
 PAPER_SURFACE_SPACING_MM = 0.2
 """Spacing of the surface points the paper's rasteriser splats, mm (below a pixel at the isocentre,

@@ -51,6 +51,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from scipy.interpolate import CubicSpline
 
 from .. import _validation as _v
+from .. import options
 from ..errors import AngiohullError
 from ..tree import Branch as TreeBranch
 from ..tree import VesselTree
@@ -64,10 +65,10 @@ __all__ = [
     "min_bend_radius_mm",
 ]
 
-TREE_KINDS: tuple[str, ...] = ("rca", "left")
+TREE_KINDS = options.TREE_KINDS
 """The trees the generator makes: the right coronary artery, or the left (left main, LAD, LCx)."""
 
-TORTUOSITY_LEVELS: tuple[str, ...] = ("simple", "moderate", "tortuous")
+TORTUOSITY_LEVELS = options.TORTUOSITY_LEVELS
 
 TORTUOSITY_BANDS: dict[str, tuple[float, float]] = {
     "simple": (0.0, 0.55),

@@ -1,0 +1,42 @@
+"""Names and defaults shared by the command line and the library.
+
+Plain Python, no NumPy: the command line reads its choices and defaults from here, so that
+``angiohull --help`` starts without importing the numerical stack. The modules that implement each
+choice import their names from here too (one definition); tests check the two agree.
+"""
+
+from __future__ import annotations
+
+__all__ = ["DEFAULT_RESOLUTION", "DEFAULT_THRESHOLD_PX", "ENGINE_NAMES", "AUTO_ENGINE", "ENGINE_CHOICES", "PRESETS",
+           "REFINED_RESOLUTION", "RASTERISERS", "TREE_KINDS", "TORTUOSITY_LEVELS"]
+
+DEFAULT_RESOLUTION = 100
+"""K of the paper's experiments."""
+
+DEFAULT_THRESHOLD_PX = 1.0
+"""The paper's distance threshold, pixels (strict)."""
+
+ENGINE_NAMES: tuple[str, ...] = ("kdtree", "lookup", "octree")
+"""The carving engines (``reconstruction.ENGINES``): the paper's reference and two faster exact ones."""
+
+AUTO_ENGINE = "octree"
+"""What ``engine="auto"`` runs: the fastest engine that keeps exactly the reference's points."""
+
+ENGINE_CHOICES: tuple[str, ...] = ("auto", *ENGINE_NAMES)
+"""Names accepted by ``reconstruct(engine=...)`` and the CLI's ``--engine``."""
+
+PRESETS: tuple[str, ...] = ("paper", "refined")
+"""``reconstruct(preset=...)``: the method as published, or with the improvements of ``reconstruction.refine``."""
+
+REFINED_RESOLUTION = 256
+"""K of the refined preset (finer than the paper's 100: less thickening)."""
+
+RASTERISERS: tuple[str, ...] = ("exact", "paper")
+"""``exact``: pixel set iff the ray through its centre meets the solid. ``paper``: surface points
+splatted by truncation, closed with a disk of radius 2, Gaussian sigma 0.5 thresholded at 0.25."""
+
+TREE_KINDS: tuple[str, ...] = ("rca", "left")
+"""The trees the generator makes: the right coronary artery, or the left (left main, LAD, LCx)."""
+
+TORTUOSITY_LEVELS: tuple[str, ...] = ("simple", "moderate", "tortuous")
+"""The generator's tortuosity levels (bands of a measured index, see ``synthetic.tree``)."""
