@@ -138,3 +138,35 @@ def test_cell_silhouette_matches_convex_hulls_of_projected_corners():
         expected |= Delaunay(p.project(c + corners)).find_simplex(grid) >= 0
     assert image.sum() > 100
     np.testing.assert_array_equal(image.reshape(-1), expected)
+
+
+def test_boundary_cells_of_a_block_leave_out_its_inside():
+    from angiohull.rasterise import boundary_cells
+
+    grid = np.stack(np.meshgrid(*[np.arange(4) * 0.5] * 3, indexing="ij"), axis=-1).reshape(-1, 3) + 0.25
+    boundary = boundary_cells(grid, 0.5)
+    assert len(boundary) == 64 - 8  # the 2 x 2 x 2 inner cells have all six neighbours
+    jittered = grid + rng_offsets(len(grid))
+    assert len(boundary_cells(jittered, 0.5)) == 64  # not on a grid: nothing is left out
+
+
+def rng_offsets(n):
+    return np.random.default_rng(0).uniform(0.01, 0.1, (n, 3))
+
+
+def test_silhouette_skipping_interior_cells_equals_the_silhouette_of_every_cell():
+    rng = np.random.default_rng(3)
+    axis = np.linspace(-12.0, 12.0, 49)
+    grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+    # a thick bent tube and a ball: solid insides, many interior cells
+    tube = np.linalg.norm(grid[:, :2] - np.c_[3 * np.sin(grid[:, 2] / 5), np.zeros(len(grid))], axis=1) < 4
+    ball = np.linalg.norm(grid - [6, 6, 6], axis=1) < 5
+    points = grid[tube | ball]
+    spacing = axis[1] - axis[0]
+    for _ in range(3):
+        carm = CArmGeometry(rng.uniform(-90, 90), rng.uniform(-40, 40), 1000.0, 700.0, (0.4, 0.4), (90, 110))
+        projection = carm.projection()
+        fast = cell_silhouette(points, projection, spacing)
+        every = cell_silhouette(points, projection, spacing, skip_interior=False)
+        assert fast.sum() > 500
+        np.testing.assert_array_equal(fast, every)

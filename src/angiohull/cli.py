@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 import warnings
@@ -708,6 +709,11 @@ _COMMANDS.update({"experiment": _cmd_experiment, "report": _cmd_report})
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``angiohull`` command; returns the exit status (0 ok, 2 bad input)."""
+    # The numerical work is many (N, 3) x (3, 3) products, which a multi-threaded BLAS makes several
+    # times slower (measured: 0.26 s against 0.034 s for a million points on 2 busy cores); set
+    # before NumPy is first imported, unless the user chose otherwise.
+    for variable in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(variable, "1")
     arguments = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in arguments if not a.startswith("-")), "")  # top-level options have no values
     parser = build_parser(command)

@@ -20,7 +20,7 @@ import numpy as np
 from . import __version__
 from .io import write_points_ply
 from .metrics import PAPER_DETECTOR_SPACING_MM, dice2d, dice2d_paper, paper_dilation_side_px, scores_3d
-from .rasterise import cell_silhouette
+from .rasterise import boundary_cells, cell_silhouette
 from .reconstruction import DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ReconstructionResult, reconstruct
 from .reconstruction.calibration import Calibration, calibrate_shifts, shift_projection
 from .errors import AngiohullError, GeometryError, OutputError, QcaError, StudyError
@@ -93,7 +93,13 @@ def calibrate_study(study: Study, options: ReconstructOptions = ReconstructOptio
 
 def view_silhouettes(study: Study, result: ReconstructionResult) -> list[np.ndarray]:
     """The reconstruction's silhouette in each view at pixel resolution (bool images)."""
-    return [cell_silhouette(result.vessel_points_mm, p, result.lattice_spacing_mm) for p in study.projections]
+    h = result.lattice_spacing_mm
+    points = result.vessel_points_mm
+    inside = [p for p in study.projections if not np.any((p.camera_centre_mm < points.min(axis=0, initial=np.inf) - h) |
+                                                         (p.camera_centre_mm > points.max(axis=0, initial=-np.inf) + h))]
+    if len(points) and not inside:  # the interior cells add nothing seen from outside: dropped once for all views
+        points = boundary_cells(points, h)
+    return [cell_silhouette(points, p, h, skip_interior=False) for p in study.projections]
 
 
 def _detector_spacing_mm(view) -> float | None:
