@@ -323,3 +323,48 @@ def test_a_study_view_is_corrected_exactly_as_the_calibration_says():
         corrected = _corrected_view(view, 4.5, -2.0, 0.93)
         np.testing.assert_allclose(corrected.projection.project(points), expected, atol=1e-9)
         assert (corrected.carm is None) == (view.carm is None)
+
+
+def test_an_estimate_that_makes_the_views_agree_less_is_not_applied(monkeypatch):
+    """The fallback: whatever the search returns, calibration never ends with views that agree less
+    than the header's geometry (here a clean case and a search forced to move view 1 by 25 px)."""
+    import angiohull.reconstruction.calibration as calibration_module
+
+    case = make_case(SynthOptions(seed=2, views="clinical"))
+    projections, masks = [v.projection for v in case.views], [v.mask for v in case.views]
+    wrong = np.array([[0.0, 0.0], [25.0, -5.0], [0.0, 0.0]])
+    monkeypatch.setattr(calibration_module, "_support_then_centrelines", lambda *args, **kwargs: (wrong, np.zeros(3), []))
+    monkeypatch.setattr(calibration_module, "_silhouette_step", lambda p, m, shifts, *a: (shifts, np.zeros(3), "skipped"))
+    calibration = calibrate_shifts(projections, masks)
+    assert calibration.outcome.startswith("reverted")
+    assert calibration.shifts_px == ((0.0, 0.0),) * 3 and calibration.scales == (1.0,) * 3
+    assert calibration.coverage_after == calibration.coverage_before
+    assert min(calibration.coverage_before) > 0.99 and not calibration.disagreeing_views
+
+
+def test_view_coverage_tells_agreeing_views_from_a_moved_one():
+    from angiohull.reconstruction.calibration import AGREEMENT_MIN_COVERAGE, view_coverage
+
+    case = make_case(SynthOptions(seed=4, views="clinical", kind="left"))
+    projections, masks = [v.projection for v in case.views], [v.mask for v in case.views]
+    assert min(view_coverage(projections, masks)) > 0.99
+    moved = [projections[0], shift_projection(projections[1], 0.0, 12.0), projections[2]]
+    assert min(view_coverage(moved, masks)) < AGREEMENT_MIN_COVERAGE
+
+
+def test_reconstruct_warns_when_the_views_disagree_and_records_it(tmp_path, capsys):
+    import json
+
+    from angiohull.cli import main
+
+    study = tmp_path / "s"
+    assert main(["synth", str(study), "--seed", "3", "--corrupt", "translate=15,5", "-q"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(study), "-o", str(out), "--no-figure", "--no-tree", "-q"]) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "views disagree" in line]
+    assert len(lines) == 1 and lines[0].startswith("angiohull: warning:") and "--calibrate" in lines[0]
+    agreement = json.loads((out / "report.json").read_text())["view_agreement"]
+    assert agreement["disagreeing"] and not agreement["after_calibration"]
+    assert min(agreement["coverage"].values()) < agreement["min_coverage"]

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Sequence, TextIO
 
 from . import __version__
-from .errors import AngiohullError, DicomGeometryWarning, QcaError, TreeWarning
+from .errors import AgreementWarning, AngiohullError, DicomGeometryWarning, QcaError, TreeWarning
 from .options import (AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES, PRESETS, RASTERISERS,
                       REFINED_RESOLUTION, TORTUOSITY_LEVELS, TREE_KINDS)
 
@@ -186,11 +186,19 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
     if options.calibrate:
         what = "shifts and scales" if options.calibrate_scale else "shifts"
         progress(f"calibrating {len(study.views)} views (per-view image {what})")
-        study, calibration = workflow.calibrate_study(study, options)
+        study, calibration = workflow.calibrate_study(study, options, progress=progress)
         shifts = ", ".join(f"{n} ({du:+.1f}, {dv:+.1f})" for n, (du, dv) in zip(study.names, calibration.shifts_px))
-        progress(f"shifts (du, dv) px: {shifts}")
+        progress(f"shifts (du, dv) px: {shifts} ({calibration.outcome.split(':')[0]}, {calibration.time_s:.1f} s)")
         if options.calibrate_scale:
             progress("scales: " + ", ".join(f"{n} {f:.4f}" for n, f in zip(study.names, calibration.scales)))
+        if calibration.outcome.startswith("reverted"):
+            warnings.warn(f"calibration {calibration.outcome}", AgreementWarning, stacklevel=1)
+        agreement = dict(zip(study.names, calibration.coverage_after))
+    else:
+        agreement = workflow.view_agreement(study, options)
+    message = workflow.agreement_warning(agreement, calibrated=options.calibrate)
+    if message:
+        warnings.warn(message, AgreementWarning, stacklevel=1)
     progress(f"reconstructing {len(study.views)} views ({options.preset} preset) with engine {options.engine}")
     result = workflow.reconstruct_study(study, options)
     progress(f"kept {len(result.vessel_points_mm)} of {result.lattice.n_points} lattice points "
@@ -210,6 +218,9 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
     silhouettes = workflow.view_silhouettes(study, result)
     scores = workflow.json_safe(workflow.evaluation_scores(study, result, silhouettes)) if score else None
     report = workflow.build_report(study, result, options, silhouettes, scores)
+    report["view_agreement"] = {"coverage": agreement, "min_coverage": workflow.AGREEMENT_MIN_COVERAGE,
+                                "disagreeing": [n for n, c in agreement.items() if c < workflow.AGREEMENT_MIN_COVERAGE],
+                                "after_calibration": calibration is not None}
     if calibration is not None:
         report["calibration"] = workflow.json_safe(calibration.to_dict(study.names))
     if out_dir is not None:
@@ -626,7 +637,7 @@ class _WarningPrinter:
         self.python = warnings.showwarning
 
     def __call__(self, message, category, filename, lineno, file=None, line=None) -> None:
-        if not issubclass(category, (DicomGeometryWarning, TreeWarning)):
+        if not issubclass(category, (DicomGeometryWarning, TreeWarning, AgreementWarning)):
             self.python(message, category, filename, lineno, file, line)
         elif str(message) not in self.seen:
             self.seen.add(str(message))
@@ -723,6 +734,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             warnings.showwarning = _WarningPrinter()
             warnings.simplefilter("always", DicomGeometryWarning)  # the printer shows each message once
             warnings.simplefilter("always", TreeWarning)
+            warnings.simplefilter("always", AgreementWarning)
             return _COMMANDS[args.command](args)
     except AngiohullError as error:
         print(f"angiohull {args.command}: error: {error}", file=sys.stderr)

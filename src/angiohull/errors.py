@@ -19,6 +19,7 @@ __all__ = [
     "SegmentationError",
     "DicomGeometryWarning",
     "TreeWarning",
+    "AgreementWarning",
     "QcaError",
 ]
 
@@ -101,3 +102,9 @@ class DicomGeometryWarning(UserWarning):
 class TreeWarning(UserWarning):
     """A reconstruction's vessel tree could not be built, or was built from less than the hull
     (parts dropped); the message says what and why."""
+
+
+class AgreementWarning(UserWarning):
+    """The views disagree: the visual hull of all views covers too little of some view's mask (a
+    geometry off by pixels, or masks that do not show the same vessels), with or without
+    calibration. The message names the views and their coverage and says what to try."""

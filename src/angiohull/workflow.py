@@ -22,7 +22,8 @@ from .io import write_points_ply
 from .metrics import PAPER_DETECTOR_SPACING_MM, dice2d, dice2d_paper, paper_dilation_side_px, scores_3d
 from .rasterise import boundary_cells, cell_silhouette
 from .reconstruction import DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ReconstructionResult, reconstruct
-from .reconstruction.calibration import Calibration, calibrate_shifts, shift_projection
+from .reconstruction.calibration import (AGREEMENT_MIN_COVERAGE, Calibration, calibrate_shifts, shift_projection,
+                                         view_coverage)
 from .errors import AngiohullError, GeometryError, OutputError, QcaError, StudyError
 from .geometry import Projection
 from .study import Study, View
@@ -31,7 +32,8 @@ from .tree import VesselTree
 if TYPE_CHECKING:  # pragma: no cover
     from .qca import QcaResult, ViewMap
 
-__all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_silhouettes", "evaluation_scores",
+__all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_agreement", "agreement_warning",
+           "view_silhouettes", "evaluation_scores",
            "tree_evaluation_scores", "tree_summary", "build_report", "write_outputs", "json_safe",
            "load_result_for_qca", "report_projections", "write_qca_outputs"]
 
@@ -80,15 +82,39 @@ def _corrected_view(view: View, du_px: float, dv_px: float, scale: float = 1.0) 
 
 
 def calibrate_study(study: Study, options: ReconstructOptions = ReconstructOptions(), *,
-                    max_shift_px: float = 60.0) -> tuple[Study, Calibration]:
+                    max_shift_px: float = 60.0,
+                    progress: Callable[[str], None] | None = None) -> tuple[Study, Calibration]:
     """Estimate per-view image shifts, and scales with ``options.calibrate_scale``
     (:func:`~angiohull.reconstruction.calibration.calibrate_shifts`), and return the study with them
     applied, and the calibration."""
     calibration = calibrate_shifts(study.projections, study.masks, threshold_px=options.threshold_px,
-                                   max_shift_px=max_shift_px, estimate_scale=options.calibrate_scale)
+                                   max_shift_px=max_shift_px, estimate_scale=options.calibrate_scale,
+                                   progress=progress)
     views = tuple(_corrected_view(v, du, dv, f)
                   for v, (du, dv), f in zip(study.views, calibration.shifts_px, calibration.scales))
     return replace(study, views=views), calibration
+
+
+def view_agreement(study: Study, options: ReconstructOptions = ReconstructOptions()) -> dict[str, float]:
+    """Per view name, the fraction of its mask the paper's hull of all views covers
+    (:func:`~angiohull.reconstruction.calibration.view_coverage`): 1 when the views agree."""
+    return dict(zip(study.names, view_coverage(study.projections, study.masks, threshold_px=options.threshold_px)))
+
+
+def agreement_warning(coverage: dict[str, float], *, calibrated: bool) -> str | None:
+    """The warning to give when some view's coverage is below AGREEMENT_MIN_COVERAGE (None if none)."""
+    poor = [name for name, value in coverage.items() if value < AGREEMENT_MIN_COVERAGE]
+    if not poor:
+        return None
+    listed = ", ".join(f"{name} {100 * value:.0f} %" for name, value in coverage.items())
+    which = ", ".join(poor)
+    if calibrated:
+        return (f"the views still disagree after calibration ({which}): the hull of all views covers {listed} of each "
+                f"mask (below {100 * AGREEMENT_MIN_COVERAGE:.0f} % means disagreement); the result is unreliable: check "
+                f"that the masks show the same vessels and the geometry (report.json: calibration)")
+    return (f"the views disagree ({which}): the hull of all views covers {listed} of each mask (below "
+            f"{100 * AGREEMENT_MIN_COVERAGE:.0f} % means disagreement); the geometry may be off by pixels (try "
+            f"--calibrate), or the masks may not show the same vessels")
 
 
 def view_silhouettes(study: Study, result: ReconstructionResult) -> list[np.ndarray]:
