@@ -32,7 +32,7 @@ def test_fast_engines_equal_kdtree_on_every_peer_study(peer_synthetic_dir):
 
 
 @pytest.mark.parametrize("seed", range(6))
-@pytest.mark.parametrize("threshold", [0.5, 1.0, 1.5, 2.3])
+@pytest.mark.parametrize("threshold", [0.5, 1.0, 1.5, 2.3, 4.5])
 def test_fast_engines_equal_kdtree_on_random_cases(seed, threshold):
     projections, masks = random_case(seed, n_views=2 + seed % 3)
     reference = carve("kdtree", projections, masks, 48, threshold)
@@ -84,7 +84,7 @@ def test_mask_lookup_matches_brute_force_distances():
     uv[:200] = np.round(uv[:200])  # exactly on pixel centres
     uv[200:400, 0] = np.round(uv[200:400, 0]) + 0.5  # exactly between two centres
     d = np.sqrt((uv[:, None, 0] - cols) ** 2 + (uv[:, None, 1] - rows) ** 2).min(1)
-    for t in (0.3, 0.5, 1.0, 1.5, 2.0, 3.7):
+    for t in (0.3, 0.5, 1.0, 1.5, 2.0, 2.5, 3.7, 6.0, 8.49):  # from 2.5 on: the distance-transform band first
         np.testing.assert_array_equal(MaskLookup(mask, t).near(uv), d < t, err_msg=str(t))
 
 

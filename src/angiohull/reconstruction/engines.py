@@ -20,10 +20,12 @@ point (views sparsest mask first, each to the survivors of the previous ones); t
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
+from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 
 from ..geometry import Projection
@@ -116,6 +118,26 @@ def carve_kdtree(lattice: Lattice, projections: Sequence[Projection], masks: Seq
     return CarveOutcome(np.concatenate(kept_chunks, axis=0), tuple(survivors))
 
 
+_BAND_FROM_REACH = 3  # MaskLookup decides by a distance transform first from this window reach on
+_BAND_SLACK_PX = 1e-9  # ... leaving the points within this of the threshold to the exact window test
+
+
+_DISTANCES: dict[tuple, np.ndarray] = {}
+
+
+def _distance_to_mask(mask: np.ndarray) -> np.ndarray:
+    """Distance from every pixel centre to the nearest mask pixel centre (read-only), remembered for
+    the last few masks by content: calibration carves the same masks dozens of times."""
+    key = (mask.shape, hashlib.blake2b(np.packbits(mask).tobytes(), digest_size=16).digest())
+    if key not in _DISTANCES:
+        if len(_DISTANCES) >= 16:
+            _DISTANCES.pop(next(iter(_DISTANCES)))
+        distance = ndi.distance_transform_edt(~mask)
+        distance.flags.writeable = False
+        _DISTANCES[key] = distance
+    return _DISTANCES[key]
+
+
 class MaskLookup:
     """Exact "closer than ``threshold_px`` to a mask pixel centre" test by direct pixel reads.
 
@@ -140,10 +162,33 @@ class MaskLookup:
         self.stride = padded.shape[1]
         self.shape = (rows, cols)
         self.offsets = [(a, b) for b in range(1 - self.reach, self.reach + 1) for a in range(1 - self.reach, self.reach + 1)]
+        # With a wide window, most points are decided by the distance from their nearest pixel centre
+        # to the mask (a distance transform), which is within half a pixel diagonal of theirs; only
+        # the points near the threshold go through the window (NumPy only).
+        self.distance = None
+        if xp is np and self.reach >= _BAND_FROM_REACH and mask.any():
+            self.distance = _distance_to_mask(np.asarray(mask, dtype=bool))
 
     def near_uv(self, u, v):
         """Bool (M,) for coordinate arrays ``u``, ``v``: a mask pixel centre is strictly closer than
         the threshold (computed as cKDTree does: the square root of the summed squares)."""
+        if self.distance is None or len(u) == 0:
+            return self._near_window(u, v)
+        rows, cols = self.shape
+        ru, rv = np.floor(u + 0.5), np.floor(v + 0.5)
+        inside = (ru >= 0) & (ru < cols) & (rv >= 0) & (rv < rows)  # False for nan
+        to_centre = np.sqrt((u - ru) ** 2 + (v - rv) ** 2)
+        nearest = np.full(len(u), np.nan)
+        nearest[inside] = self.distance[rv[inside].astype(np.intp), ru[inside].astype(np.intp)]
+        # |distance to the mask - distance from the nearest pixel centre| <= distance to that centre
+        keep = inside & (nearest + to_centre < self.threshold_px - _BAND_SLACK_PX)
+        unsure = np.flatnonzero(~keep & ~(inside & (nearest - to_centre >= self.threshold_px + _BAND_SLACK_PX)))
+        if len(unsure):
+            keep[unsure] = self._near_window(u[unsure], v[unsure])
+        return keep
+
+    def _near_window(self, u, v):
+        """:meth:`near_uv` by reading every pixel of the window around each point."""
         xp, rows, cols = self.xp, *self.shape
         # points far outside the image map into the zero padding; non-finite ones too
         fu = xp.floor(xp.clip(xp.where(xp.isnan(u), -1e9, u), -self.reach - 1, cols + self.reach))
