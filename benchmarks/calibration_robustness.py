@@ -8,7 +8,8 @@ both presets; Dice3D against the truth. A case *loses* when its calibrated Dice3
 its outcome (improved / unchanged / reverted), the agreement of the views after it (per-view mask
 coverage, :func:`angiohull.reconstruction.calibration.view_coverage`), the silhouette fit's outline
 RMS, and whether the command line would warn (:func:`angiohull.workflow.agreement_warning` or a
-reverted calibration). The report counts the cases that lose without a warning (the issue's bar:
+reverted calibration, or an ambiguous one: another view moved instead explains the masks as well).
+The report counts the cases that lose without a warning (the issue's bar:
 none).
 
 Cases (the same defaults for all):
@@ -72,7 +73,7 @@ def _run(task: tuple[str, object, int]) -> dict:
     from angiohull.reconstruction import reconstruct
     from angiohull.reconstruction.calibration import calibrate_shifts
     from angiohull.synthetic.corruptions import Translate
-    from angiohull.workflow import agreement_warning
+    from angiohull.workflow import agreement_warning, ambiguity_warning
 
     source, key, seed = task
     name, projections, masks, truth = _generated(key) if source == "generated" else _peer(key)
@@ -92,12 +93,14 @@ def _run(task: tuple[str, object, int]) -> dict:
     seconds = time.perf_counter() - start
     corrected = calibration.corrected(projections)
     names = [f"view{i}" for i in range(len(masks))]
-    warning = agreement_warning(dict(zip(names, calibration.coverage_after)), calibrated=True)
+    warning = (agreement_warning(dict(zip(names, calibration.coverage_after)), calibrated=True)
+               or ambiguity_warning(calibration, names))
     row = {"source": source, "case": name, "views": len(masks), "moved_view": view, "shift_px": list(shift),
            "shift_length_px": length, "found_px": list(calibration.shifts_px[view]),
            "calibration_s": seconds, "outcome": calibration.outcome,
            "coverage_before": list(calibration.coverage_before), "coverage_after": list(calibration.coverage_after),
            "silhouette_fit": calibration.silhouette_fit,
+           "ambiguous_with": [list(a[:1]) + list(a[1]) + list(a[2:]) for a in calibration.ambiguous_with],
            "warns": bool(warning) or calibration.outcome.startswith("reverted")}
     for preset in PRESETS:
         row[f"{preset}_clean"] = dice(projections, masks, preset)

@@ -348,7 +348,7 @@ def test_view_coverage_tells_agreeing_views_from_a_moved_one():
     case = make_case(SynthOptions(seed=4, views="clinical", kind="left"))
     projections, masks = [v.projection for v in case.views], [v.mask for v in case.views]
     assert min(view_coverage(projections, masks)) > 0.99
-    moved = [projections[0], shift_projection(projections[1], 0.0, 12.0), projections[2]]
+    moved = [projections[0], shift_projection(projections[1], 0.0, 25.0), projections[2]]
     assert min(view_coverage(moved, masks)) < AGREEMENT_MIN_COVERAGE
 
 

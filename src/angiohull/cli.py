@@ -193,6 +193,9 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
             progress("scales: " + ", ".join(f"{n} {f:.4f}" for n, f in zip(study.names, calibration.scales)))
         if calibration.outcome.startswith("reverted"):
             warnings.warn(f"calibration {calibration.outcome}", AgreementWarning, stacklevel=1)
+        ambiguity = workflow.ambiguity_warning(calibration, study.names)
+        if ambiguity:
+            warnings.warn(ambiguity, AgreementWarning, stacklevel=1)
         agreement = dict(zip(study.names, calibration.coverage_after))
     else:
         agreement = workflow.view_agreement(study, options)

@@ -33,6 +33,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from .qca import QcaResult, ViewMap
 
 __all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_agreement", "agreement_warning",
+           "ambiguity_warning",
            "view_silhouettes", "evaluation_scores",
            "tree_evaluation_scores", "tree_summary", "build_report", "write_outputs", "json_safe",
            "load_result_for_qca", "report_projections", "write_qca_outputs"]
@@ -115,6 +116,18 @@ def agreement_warning(coverage: dict[str, float], *, calibrated: bool) -> str | 
     return (f"the views disagree ({which}): the hull of all views covers {listed} of each mask (below "
             f"{100 * AGREEMENT_MIN_COVERAGE:.0f} % means disagreement); the geometry may be off by pixels (try "
             f"--calibrate), or the masks may not show the same vessels")
+
+
+def ambiguity_warning(calibration: Calibration, names: Sequence[str]) -> str | None:
+    """The warning to give when another view's correction explains the views as well (None if none)."""
+    if not calibration.ambiguous_with:
+        return None
+    moved = [names[i] for i, (du, dv) in enumerate(calibration.shifts_px) if math.hypot(du, dv) >= 1.0]
+    options = "; ".join(f"{names[v]} by ({d[0]:+.1f}, {d[1]:+.1f}) px (the object {t:.1f} mm away)"
+                        for v, d, r, t in calibration.ambiguous_with)
+    return (f"calibration is ambiguous: instead of moving {', '.join(moved)}, moving {options} explains the masks "
+            f"as well; these views look from nearly the same direction, so the 3D position is uncertain by that "
+            f"much (report.json: calibration.ambiguous_with); a view from another direction would decide it")
 
 
 def view_silhouettes(study: Study, result: ReconstructionResult) -> list[np.ndarray]:

@@ -95,6 +95,15 @@ that maximises that agreement (three views or more; two views: see the end):
    views still below AGREEMENT_MIN_COVERAGE after it are reported (``disagreeing_views``), and the
    command line warns.
 
+10. **Ambiguity.** Two views seen from nearly the same direction (e.g. RAO 30 CRA 30 and RAO 30
+    CAU 30) leave it nearly open which of them moved: a shift of one equals a shift of the other
+    and a translation of the object, up to a pixel. When the correction moves one view, the
+    correction moving another one instead (the translation that leaves the rest unmoved taken out,
+    then that view fitted) is tried; if its summed centreline cost is within AMBIGUITY_COST_RATIO
+    of the chosen one's, the calibration is ambiguous (``ambiguous_with``): the masks agree either
+    way, but the object's position differs by the translation between the two (on one of the
+    authors' studies 7.5 mm, Dice3D 75 % -> 44 %), and the command line warns.
+
 **Two views** determine one number only (four shift components, three of them a common 3D
 translation): view 1's shift across its epipolar lines. The hull of one view is a whole cone, so
 the support score above has no meaning there; :func:`.epipolar.two_view_shift` instead makes the
@@ -153,6 +162,10 @@ AGREEMENT_MIN_COVERAGE = 0.9
 with the others: measured on the authors' and generated studies, the paper hull covers 0.99-1.00
 of every exact mask when the views agree, and a view moved by 5-40 px drops it to 0.39-0.97."""
 
+AMBIGUITY_COST_RATIO = 1.05
+"""An alternative correction (another view moved instead of the one calibration moved) whose summed
+centreline cost is at most this times the chosen one's makes the calibration ambiguous."""
+_AMBIGUITY_RESIDUAL_PX = 2.0  # the alternative leaves every other view within this of unmoved
 _OUTCOME_TOLERANCE = 0.002  # mean coverage changes smaller than this leave the views' agreement "unchanged"
 _MOVED_PX = 1.0  # a view whose correction is shorter than this counts as unmoved (gauge choice)
 _TIE_PX = 2.0  # gauge alternatives moving as many views and at most this much longer in total are near-ties
@@ -190,6 +203,9 @@ class Calibration:
     # the views agree less than the header's geometry did, so none was applied)
     outcome: str = "improved"
     time_s: float = 0.0  # seconds the calibration took
+    # alternatives as good as the correction found: (view moved instead, its shift (du, dv), cost
+    # relative to the chosen correction's, how far the object moves between the two, mm)
+    ambiguous_with: tuple[tuple[int, tuple[float, float], float, float], ...] = ()
     history: list[tuple[int, int, float, float, float]] = field(default_factory=list, repr=False)
 
     @property
@@ -221,6 +237,8 @@ class Calibration:
             "rounds": self.rounds,
             "silhouette_fit": self.silhouette_fit,
             "outcome": self.outcome,
+            "ambiguous_with": [{"view": names[v], "shift_px": {"du": d[0], "dv": d[1]}, "cost_ratio": r,
+                                "object_moves_mm": t} for v, d, r, t in self.ambiguous_with],
             "agreement_min_coverage": AGREEMENT_MIN_COVERAGE,
             "disagreeing_views": [names[i] for i in self.disagreeing_views],
             "time_s": self.time_s,
@@ -566,6 +584,7 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
     if estimate_scale and n < 3:
         raise ReconstructionError(f"scale estimation needs at least 3 views, got {n}")
     scales = np.ones(n)
+    ambiguous: list = []
     if n == 2:
         say("two views: matching the masks' epipolar planes")
         # one number is observable: view 1's shift across its epipolar lines (see .epipolar)
@@ -583,11 +602,13 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
                 projections, masks, centre_lines, (final, translation, history), half_edge, threshold_px, max_shift_px,
                 min_gain, rounds)
         silhouette = f"not run: more than {JOINT_FIT_MAX_VIEWS} views"
+        scaled = [p.magnified(f) for p, f in zip(projections, scales)]
         if n <= JOINT_FIT_MAX_VIEWS:
             say("fitting a tube model to the masks' outlines")
-            final, further, silhouette = _silhouette_step([p.magnified(f) for p, f in zip(projections, scales)],
-                                                          masks, final, half_edge, threshold_px)
+            final, further, silhouette = _silhouette_step(scaled, masks, final, half_edge, threshold_px)
             translation = translation + further
+        say("looking for other corrections as good")
+        ambiguous = _alternatives(scaled, centre_lines, final)
     say("measuring how well the views agree before and after")
     level = _Level(projections, masks, half_edge, COVERAGE_RESOLUTION, threshold_px)
     before = level.coverage_per_view(np.zeros((n, 2)))
@@ -600,7 +621,7 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
         # never worse than the header's geometry: the estimate is reported but not applied
         outcome = (f"reverted: the estimated correction made the views agree less (mean mask coverage "
                    f"{np.mean(after):.3f}) than the header's geometry ({np.mean(before):.3f}); none applied")
-        final, scales, translation, after = np.zeros((n, 2)), np.ones(n), np.zeros(3), before
+        final, scales, translation, after, ambiguous = np.zeros((n, 2)), np.ones(n), np.zeros(3), before, []
     elif np.mean(after) <= np.mean(before) + _OUTCOME_TOLERANCE:
         outcome = "unchanged"
     return Calibration(
@@ -613,8 +634,38 @@ def calibrate_shifts(projections: Sequence[Projection], masks: Sequence[np.ndarr
         silhouette_fit=silhouette,
         outcome=outcome,
         time_s=time.perf_counter() - start,
+        ambiguous_with=tuple(ambiguous),
         history=history,
     )
+
+
+def _alternatives(projections: Sequence[Projection], centre_lines: Sequence[Centreline],
+                  shifts: np.ndarray) -> list[tuple[int, tuple[float, float], float, float]]:
+    """Step 10 of the module notes: when the correction moves one view, the other single-view
+    corrections that explain the centrelines as well (two views seen from nearly the same direction
+    trade a shift of one for a shift of the other and a translation of the object)."""
+    jacobians = [_jacobian(p) for p in projections]
+    moved = _moved(shifts)
+    if len(moved) != 1 or len(projections) > JOINT_FIT_MAX_VIEWS:
+        return []
+    gauge = np.vstack(jacobians)
+    cost = consistency_cost(projections, centre_lines, shifts, cutoff_px=_JOINT_CUTOFF_PX)
+    found = []
+    for view in range(len(projections)):
+        if view in moved:
+            continue
+        held = [v for v in range(len(projections)) if v != view]
+        t = _keeping(shifts, jacobians, held)
+        alternative = shifts - np.stack([j @ t for j in jacobians])
+        if max(np.linalg.norm(alternative[v]) for v in held) > _AMBIGUITY_RESIDUAL_PX:
+            continue
+        alternative[held] = 0.0
+        fitted, fitted_cost = fit_jointly(projections, centre_lines, alternative, gauge, cutoff_px=_JOINT_CUTOFF_PX,
+                                          views=[view], reach_px=2)
+        if cost > 0 and fitted_cost <= AMBIGUITY_COST_RATIO * cost:
+            found.append((view, (float(fitted[view][0]), float(fitted[view][1])), float(fitted_cost / cost),
+                          float(np.linalg.norm(t))))
+    return found
 
 
 def view_coverage(projections: Sequence[Projection], masks: Sequence[np.ndarray], *, threshold_px: float = 1.0,
