@@ -20,6 +20,7 @@ __all__ = [
     "DicomGeometryWarning",
     "TreeWarning",
     "QcaError",
+    "ViewerError",
 ]
 
 
@@ -63,6 +64,11 @@ class QcaError(AngiohullError):
 class OutputError(AngiohullError):
     """An output folder or file cannot be written (the message names the path and the reason);
     nothing of the outputs being written is left behind."""
+
+
+class ViewerError(AngiohullError):
+    """The interactive viewer cannot be built: a result folder without what it needs, a bad layer,
+    or the plotly package missing."""
 
 
 class ReconstructionError(AngiohullError):
