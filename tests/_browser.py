@@ -39,6 +39,7 @@ FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader
 _LAUNCHER = ("import os, sys\n"
              "a, b = os.dup(int(sys.argv[1])), os.dup(int(sys.argv[2]))\n"
              "os.dup2(a, 3); os.dup2(b, 4)\n"
+             "os.set_inheritable(3, True); os.set_inheritable(4, True)\n"
              "os.execv(sys.argv[3], sys.argv[3:])\n")
 
 
@@ -70,6 +71,40 @@ class PageShot:
     seconds: float = 0.0  # from navigation to ready (the page's load and first render)
 
 
+class Page:
+    """An open tab (:meth:`Browser.page`)."""
+
+    def __init__(self, browser: "Browser", target: str, session: str):
+        self.browser, self.target, self.session = browser, target, session
+        self.seconds = 0.0  # from navigation to ready
+
+    def evaluate(self, expression: str, *, wait: bool = False):
+        """The value of a JavaScript expression (``wait``: of the promise it returns)."""
+        reply = self.browser.send("Runtime.evaluate", {"expression": expression, "returnByValue": True,
+                                                       "awaitPromise": wait}, self.session)
+        if "exceptionDetails" in reply:
+            raise BrowserError(f"{expression}: {reply['exceptionDetails'].get('text')}")
+        return reply.get("result", {}).get("value")
+
+    def shot(self, settle_frames: int = 3) -> PageShot:
+        """A screenshot after a few animation frames, with the errors and warnings logged so far."""
+        frames = ("new Promise(r => { let n = %d; const f = () => (--n > 0 ? requestAnimationFrame(f) : r(true));"
+                  " requestAnimationFrame(f); })" % max(1, settle_frames))
+        self.evaluate(frames, wait=True)
+        png = base64.b64decode(self.browser.send("Page.captureScreenshot", {"format": "png"}, self.session)["data"])
+        errors, warnings = self.browser._page_messages(self.session)
+        return PageShot(png=png, errors=errors, warnings=warnings, seconds=self.seconds)
+
+    def close(self) -> None:
+        self.browser.send("Target.closeTarget", {"targetId": self.target})
+
+    def __enter__(self) -> "Page":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
 class Browser:
     """One headless Chromium process; :meth:`load` opens a page and returns its screenshot."""
 
@@ -93,8 +128,10 @@ class Browser:
         self._messages: queue.Queue = queue.Queue()
         self._next_id = 0
         self._events: list[dict] = []
-        threading.Thread(target=self._read, daemon=True).start()
-        threading.Thread(target=self._drain_stderr, daemon=True).start()
+        self._threads = [threading.Thread(target=self._read, daemon=True),
+                         threading.Thread(target=self._drain_stderr, daemon=True)]
+        for thread in self._threads:
+            thread.start()
 
     # -- protocol ---------------------------------------------------------------------------------
     def _read(self) -> None:
@@ -155,8 +192,14 @@ class Browser:
     def load(self, url: str, *, ready: str = "document.readyState === 'complete'", settle_frames: int = 3) -> PageShot:
         """Open ``url`` in a new tab, wait until the JavaScript expression ``ready`` is true (then a
         few animation frames more), take a screenshot, close the tab, and return what was seen."""
+        with self.page(url, ready=ready) as page:
+            return page.shot(settle_frames)
+
+    def page(self, url: str, *, ready: str = "document.readyState === 'complete'") -> "Page":
+        """Open ``url`` in a new tab and wait until ``ready`` is true; close it with ``with``."""
         target = self.send("Target.createTarget", {"url": "about:blank"})["targetId"]
         session = self.send("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
+        page = Page(self, target, session)
         try:
             for domain in ("Page", "Runtime", "Log"):
                 self.send(f"{domain}.enable", session=session)
@@ -166,23 +209,15 @@ class Browser:
             deadline = start + self.timeout_s
             self.send("Page.navigate", {"url": url}, session)
             self._wait_event("Page.loadEventFired", session, deadline)
-            while True:
-                value = self.send("Runtime.evaluate", {"expression": f"Boolean({ready})", "returnByValue": True},
-                                  session)
-                if value.get("result", {}).get("value") is True:
-                    break
+            while not page.evaluate(f"Boolean({ready})"):
                 if time.monotonic() > deadline:
                     raise BrowserError(f"the page was not ready ({ready}) within {self.timeout_s:g} s")
                 time.sleep(0.05)
-            seconds = time.monotonic() - start
-            frames = ("new Promise(r => { let n = %d; const f = () => (--n > 0 ? requestAnimationFrame(f) : r(true));"
-                      " requestAnimationFrame(f); })" % max(1, settle_frames))
-            self.send("Runtime.evaluate", {"expression": frames, "awaitPromise": True}, session)
-            png = base64.b64decode(self.send("Page.captureScreenshot", {"format": "png"}, session)["data"])
-            errors, warnings = self._page_messages(session)
-            return PageShot(png=png, errors=errors, warnings=warnings, seconds=seconds)
-        finally:
-            self.send("Target.closeTarget", {"targetId": target})
+            page.seconds = time.monotonic() - start
+        except BaseException:
+            page.close()
+            raise
+        return page
 
     def _page_messages(self, session: str) -> tuple[list[str], list[str]]:
         # collect what arrived so far without waiting
@@ -214,7 +249,6 @@ class Browser:
                     errors.append(f"log ({entry.get('source')}): {entry.get('text')} {entry.get('url', '')}".rstrip())
                 elif entry.get("level") == "warning":
                     warnings.append(entry.get("text", ""))
-        self._events = [e for e in self._events if e.get("sessionId") != session]
         return errors, warnings
 
     # -- lifetime ---------------------------------------------------------------------------------
@@ -235,6 +269,10 @@ class Browser:
                 os.close(self._to_child)
             except OSError:
                 pass
+            for thread in self._threads:  # both end at the pipes' end of file, once Chromium has exited
+                thread.join(timeout=10)
+            if self._process.stderr is not None:
+                self._process.stderr.close()
             shutil.rmtree(self._profile, ignore_errors=True)
 
     def __enter__(self) -> "Browser":
