@@ -33,7 +33,7 @@ import html
 import json
 import math
 import os
-import tempfile
+import secrets
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,9 +52,9 @@ __all__ = ["ViewerView", "viewer_html", "write_viewer", "plotly_js", "truth_dist
 #: Most lumen points drawn when they are the main layer (no mesh).
 MAX_POINTS = 60_000
 #: Most lumen points drawn when a mesh is shown (the points are then a layer that starts hidden).
-MAX_POINTS_UNDER_MESH = 25_000
+MAX_POINTS_UNDER_MESH = 15_000
 #: Most mesh faces drawn; above it the mesh is decimated by vertex clustering.
-MAX_MESH_FACES = 60_000
+MAX_MESH_FACES = 40_000
 #: Most ground-truth points drawn.
 MAX_TRUTH_POINTS = 15_000
 #: The id of the ``<script type="application/json">`` element that holds the scene.
@@ -68,7 +68,8 @@ _TRUE_CENTERLINE_COLOUR = "#222222"
 _LESION_COLOUR = "#d55e00"  # Okabe–Ito vermillion, as in the QCA figures
 _VIEW_COLOURS = ("#0072b2", "#009e73", "#cc79a7", "#e69f00", "#56b4e9", "#f0e442", "#000000")
 _RADIUS_SCALE = "Viridis"
-_ERROR_SCALE = "Inferno"
+# blue (near the truth) through yellow to red (far): readable on white at every level (ColorBrewer RdYlBu)
+_ERROR_SCALE = [[0.0, "#313695"], [0.25, "#4575b4"], [0.5, "#fee090"], [0.75, "#f46d43"], [1.0, "#a50026"]]
 
 
 @dataclass(frozen=True)
@@ -567,15 +568,12 @@ def write_viewer(path: str | os.PathLike[str], **kwargs: Any) -> Path:
     """
     text = viewer_html(**kwargs)
     out = Path(path)
-    temporary = None
+    temporary = out.parent / f".{out.name}.{secrets.token_hex(6)}.partial"
     try:
-        with tempfile.NamedTemporaryFile("w", encoding="utf-8", dir=out.parent, prefix=f".{out.name}.",
-                                         suffix=".partial", delete=False) as handle:
-            temporary = Path(handle.name)
+        with open(temporary, "x", encoding="utf-8") as handle:  # created with the usual permissions
             handle.write(text)
         temporary.replace(out)
     except OSError as exc:
-        if temporary is not None:
-            temporary.unlink(missing_ok=True)
+        temporary.unlink(missing_ok=True)
         raise OutputError(f"cannot write {out}: {exc.strerror or exc}") from None
     return out
