@@ -164,19 +164,53 @@ def _format_scores(scores: dict) -> str:
     return text
 
 
-def _scores_line(scores: dict) -> str:
-    """The scores of _format_scores on one line, for the figure and the viewer."""
+def _score_lines(scores: dict) -> list[str]:
+    """The scores of _format_scores in one or two short lines (3D and 2D; the tree's), for the figure."""
     def fmt(key, unit="", digits=1):
         value = scores.get(key)
         return "n/a" if value is None else f"{value:.{digits}f}{unit}"
 
-    text = (f"Dice3D {fmt('dice3d', ' %')} · IoU3D {fmt('iou3d', ' %')} · Chamfer {fmt('chamfer_mm', ' mm', 2)} · "
-            f"Dice2D {fmt('dice2d_paper', ' %')} (paper), {fmt('dice2d', ' %')} (plain)")
+    lines = [f"Dice3D {fmt('dice3d', ' %')} · IoU3D {fmt('iou3d', ' %')} · Chamfer {fmt('chamfer_mm', ' mm', 2)} · "
+             f"Dice2D {fmt('dice2d_paper', ' %')} (paper protocol), {fmt('dice2d', ' %')} (plain)"]
     if "centerline_mean_mm" in scores:
-        text += (f" · tree: centerline {fmt('centerline_mean_mm', ' mm', 2)} (p95 {fmt('centerline_p95_mm', ' mm', 2)}), "
-                 f"Ot(1 mm) {fmt('ot1mm', '', 2)}, clDice {fmt('cldice', '', 2)}, radius MAE "
-                 f"{fmt('radius_mae_mm', ' mm', 2)}, branches {scores.get('branches_found')}/{scores.get('branches_true')}")
-    return text
+        lines.append(f"tree: centerline distance {fmt('centerline_mean_mm', ' mm', 2)} (p95 "
+                     f"{fmt('centerline_p95_mm', ' mm', 2)}) · Ot(1 mm) {fmt('ot1mm', '', 2)} · clDice "
+                     f"{fmt('cldice', '', 2)} · radius MAE {fmt('radius_mae_mm', ' mm', 2)} (bias "
+                     f"{fmt('radius_bias_mm', ' mm', 2)}) · branches found {scores.get('branches_found')} of "
+                     f"{scores.get('branches_true')} · bifurcations matched {scores.get('bifurcations_matched')} of "
+                     f"{scores.get('bifurcations_true')}")
+    return lines
+
+
+def _scores_line(scores: dict) -> str:
+    """The scores on one line, for the viewer's subtitle."""
+    return " · ".join(_score_lines(scores))
+
+
+def _view_images(study) -> list | None:
+    """Per view, the angiogram an ``image:`` view was segmented from (read again: the study keeps only
+    the mask), else None; None when no view has one. A DICOM image without a recorded frame is read
+    with the automatic frame choice again (the default settings)."""
+    if all(view.image_path is None for view in study.views):
+        return None
+    from . import io
+    from .dicom import read_xa_view
+
+    images = []
+    for view in study.views:
+        image = None
+        if view.image_path is not None:
+            try:
+                if view.image_path.suffix.lower() in io.IMAGE_SUFFIXES:
+                    image = io.read_image(view.image_path)
+                else:
+                    image = read_xa_view(view.image_path, view.frame).image
+            except AngiohullError:  # drawn without it; the study loaded it once already
+                image = None
+            if image is not None and image.shape[:2] != view.mask.shape:
+                image = None
+        images.append(image)
+    return images
 
 
 def _run_title(study, result, options, calibration) -> str:
@@ -287,8 +321,8 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
                 Path(out_dir) / "figure.png", vessel_points_mm=result.vessel_points_mm, masks=study.masks,
                 reprojections=silhouettes, view_names=study.names, centerline_points_mm=result.centerline_points_mm,
                 ground_truth_mm=study.ground_truth_mm, view_scores=[v["dice2d_reprojection"] for v in report["views"]],
-                title=f"angiohull — K={result.lattice.resolution}, threshold {options.threshold_px:g} px, engine "
-                      f"{result.engine}, {result.preset} preset",
+                title=title, scores=_score_lines(scores) if scores else None, images=_view_images(study),
+                lattice_spacing_mm=result.lattice_spacing_mm,
             )
         for name, path in paths.items():
             progress(f"wrote {name}: {path}")

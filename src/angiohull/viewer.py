@@ -68,8 +68,8 @@ _TRUE_CENTERLINE_COLOUR = "#222222"
 _LESION_COLOUR = "#d55e00"  # Okabe–Ito vermillion, as in the QCA figures
 _VIEW_COLOURS = ("#0072b2", "#009e73", "#cc79a7", "#e69f00", "#56b4e9", "#f0e442", "#000000")
 _RADIUS_SCALE = "Viridis"
-# blue (near the truth) through yellow to red (far): readable on white at every level (ColorBrewer RdYlBu)
-_ERROR_SCALE = [[0.0, "#313695"], [0.25, "#4575b4"], [0.5, "#fee090"], [0.75, "#f46d43"], [1.0, "#a50026"]]
+# blue (near the truth) through amber to red (far): visible on white at every level; as in figure.png
+_ERROR_SCALE = [[0.0, "#2b5ba8"], [0.5, "#e6a100"], [1.0, "#b2182b"]]
 
 
 @dataclass(frozen=True)
@@ -414,7 +414,8 @@ def _scene(*, vessel_points_mm: Any, mesh_vertices_mm: Any, mesh_faces: Any, tre
                 line_error = truth_distances_mm(tree_points, truth)
                 against = "nearest truth point"
             errors.append(("centerline", tree_points, line_error, against))
-        limit = _colour_limit(np.concatenate([e[2] for e in errors]) if errors else np.empty(0), 1.0)
+        # as in figure.png: at least 3 mm (the paper's voxel), so that sampling alone does not look like error
+        limit = _colour_limit(np.concatenate([e[2] for e in errors]) if errors else np.empty(0), 3.0)
         meta["error_colour_limit_mm"] = limit
         for k, (label, points, error, against) in enumerate(errors):
             groups["truth"].append(len(traces))
