@@ -60,7 +60,7 @@ def scene():
     truth = surface_mesh(truth_tree, step_mm=0.8).vertices_mm
     kwargs = dict(vessel_points_mm=points, mesh_vertices_mm=mesh.vertices_mm, mesh_faces=mesh.faces, tree=tree,
                   views=_views(), ground_truth_mm=truth, ground_truth_tree=truth_tree, lesions=[LESION],
-                  title="tiny Y </script><script>window.bad = 1</script>", subtitle="Dice3D 91.0 %")
+                  title="tiny Y </script><script>window.bad = 1</script>", subtitle=["Dice3D 91.0 %", "tree: <b>x</b>"])
     return {"kwargs": kwargs, "html": viewer_html(**kwargs), "mesh": mesh, "points": points, "truth": truth,
             "truth_tree": truth_tree, "tree": tree}
 
@@ -102,7 +102,7 @@ def test_page_is_self_contained_and_its_scene_parses(scene):
     assert page.count("<script") == 3 and "window.bad = 1</script>" not in page
     figure = figure_of(page)
     assert "window.bad = 1" in figure["layout"]["title"]["text"]
-    assert figure["layout"]["title"]["subtitle"]["text"] == "Dice3D 91.0 %"
+    assert figure["layout"]["title"]["subtitle"]["text"] == "Dice3D 91.0 %<br>tree: &lt;b&gt;x&lt;/b&gt;"
 
 
 def test_mesh_points_and_tree_are_the_inputs(scene):

@@ -182,11 +182,6 @@ def _score_lines(scores: dict) -> list[str]:
     return lines
 
 
-def _scores_line(scores: dict) -> str:
-    """The scores on one line, for the viewer's subtitle."""
-    return " · ".join(_score_lines(scores))
-
-
 def _view_images(study) -> list | None:
     """Per view, the angiogram an ``image:`` view was segmented from (read again: the study keeps only
     the mask), else None; None when no view has one. A DICOM image without a recorded frame is read
@@ -298,7 +293,7 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
             inputs = dict(vessel_points_mm=result.vessel_points_mm, tree=result.tree,
                           centerline_points_mm=result.centerline_points_mm, views=_viewer_views(study),
                           ground_truth_mm=study.ground_truth_mm, ground_truth_tree=study.ground_truth_tree,
-                          title=title, subtitle=_scores_line(scores) if scores else "")
+                          title=title, subtitle=_score_lines(scores) if scores else ())
             state = viewer_state if viewer_state is not None else {}
             state.update(inputs)
 
@@ -623,7 +618,7 @@ def _cmd_view(args) -> int:
         views=[ViewerView(n, p, sid) for n, p, sid in zip(found.names, found.projections, found.sids_mm)],
         ground_truth_mm=None if study is None else study.ground_truth_mm,
         ground_truth_tree=None if study is None else study.ground_truth_tree,
-        lesions=found.lesions, title=title, subtitle=_scores_line(scores) if isinstance(scores, dict) else "")
+        lesions=found.lesions, title=title, subtitle=_score_lines(scores) if isinstance(scores, dict) else ())
     for note in found.notes:
         print(f"angiohull view: note: {note}", file=sys.stderr)
     if not args.quiet:

@@ -463,7 +463,7 @@ def _buttons(groups: Mapping[str, list[int]]) -> list[dict]:
 def viewer_html(*, vessel_points_mm: Any, mesh_vertices_mm: Any = None, mesh_faces: Any = None, tree: Any = None,
                 centerline_points_mm: Any = None, views: Sequence[ViewerView] = (), ground_truth_mm: Any = None,
                 ground_truth_tree: Any = None, lesions: Sequence[Mapping[str, Any]] = (), title: str = "angiohull",
-                subtitle: str = "") -> str:
+                subtitle: str | Sequence[str] = "") -> str:
     """The viewer page of a reconstruction (one self-contained HTML document, UTF-8).
 
     Parameters
@@ -487,8 +487,10 @@ def viewer_html(*, vessel_points_mm: Any, mesh_vertices_mm: Any = None, mesh_fac
         Rows of a quantitative analysis (``QcaResult.lesion_rows()``, or qca.json's ``lesions``):
         ``x_mm, y_mm, z_mm, mld_mm, diameter_stenosis_pct, lesion_length_mm`` and optionally
         ``branch, branch_name, reference_diameter_mm, best_view``.
-    title, subtitle : str
-        The page's heading (plain text; the subtitle is a line of scores or notes).
+    title : str
+        The page's heading (plain text).
+    subtitle : str or sequence of str
+        Lines under it (plain text), e.g. the scores.
 
     Raises
     ------
@@ -505,12 +507,14 @@ def viewer_html(*, vessel_points_mm: Any, mesh_vertices_mm: Any = None, mesh_fac
                    ground_truth_tree=ground_truth_tree, lesions=list(lesions))
     heading = {"text": _text(title), "x": 0.5, "xanchor": "center", "y": 0.99, "yanchor": "top", "yref": "container",
                "font": {"size": 15}}
-    if subtitle:
-        heading["subtitle"] = {"text": _text(subtitle), "font": {"size": 11, "color": "#444444"}}
+    lines = [subtitle] if isinstance(subtitle, str) else [str(line) for line in subtitle]
+    lines = [line for line in lines if line]
+    if lines:
+        heading["subtitle"] = {"text": "<br>".join(_text(line) for line in lines), "font": {"size": 11, "color": "#444444"}}
     axis = {"showbackground": True, "backgroundcolor": "#f7f7f7", "gridcolor": "#dddddd", "zeroline": False}
     layout = {
         "title": heading,
-        "margin": {"l": 0, "r": 0, "t": 64 if subtitle else 44, "b": 0},
+        "margin": {"l": 0, "r": 0, "t": 46 + 16 * len(lines), "b": 0},
         "paper_bgcolor": "white",
         "showlegend": True,
         "legend": {"x": 0.0, "xanchor": "left", "y": 0.93, "yanchor": "top", "bgcolor": "rgba(255,255,255,0.85)",
