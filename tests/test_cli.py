@@ -54,7 +54,7 @@ def test_reconstruct_without_centerlines_and_figure(tmp_path):
     study = ball_study(tmp_path / "study")
     out = tmp_path / "out"
     assert main(["reconstruct", str(study), "-o", str(out), "-k", "20", "--no-centerlines", "--no-figure", "--no-tree",
-                 "-q"]) == 0
+                 "--no-viewer", "-q"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["report.json", "vessel.ply"]
 
 

@@ -141,3 +141,20 @@ def test_find_runs_and_bad_report_inputs(quick_runs, tmp_path, capsys):
     assert find_runs([quick_runs / "general"]) == [quick_runs / "general"]
     assert main(["report", str(tmp_path), "-o", str(tmp_path / "out")]) == 2
     assert "neither a run directory" in capsys.readouterr().err
+
+
+def test_figure_titles_say_what_ran_and_are_never_cut(report):
+    from angiohull.experiments.figures import _wrapped
+    from angiohull.experiments.report import figure_title
+
+    _, document, _ = report
+    for run in document["runs"]:
+        title = figure_title(run)
+        assert title.startswith(f"{run['name']}: quick run, {run['cases_done']} of {run['cases_total']} cases")
+        assert run["description"] in title  # the full experiment's description, said to be that
+    words = ("view 0 (AP) of three perpendicular views shifted by 100 random vectors in [-100, 100)^2 px, one "
+             "moderate tree per vector, " * 3).split()
+    wrapped = _wrapped(" ".join(words), 8.4)
+    assert wrapped.split() == words and "..." not in wrapped and "…" not in wrapped
+    assert all(len(line) <= int(8.4 * 72 / (0.55 * 11)) for line in wrapped.splitlines())
+    assert len(wrapped.splitlines()) >= 3

@@ -315,3 +315,17 @@ def test_qca_help(capsys):
     with pytest.raises(SystemExit):
         main(["reconstruct", "--help"])
     assert "--qca" in capsys.readouterr().out
+
+
+def test_reconstruct_qca_puts_the_lesions_in_the_viewer(case):
+    """``reconstruct --qca`` writes viewer.html again with a marker per lesion of qca.json."""
+    from test_viewer import decode, figure_of, trace
+
+    lesions = _json(case["result"] / "qca" / "qca.json")["lesions"]
+    figure = figure_of((case["result"] / "viewer.html").read_text(encoding="utf-8"))
+    markers = trace(figure, f"lesions ({len(lesions)})")
+    positions = np.column_stack([decode(markers[k]) for k in "xyz"])
+    np.testing.assert_allclose(positions, [[row["x_mm"], row["y_mm"], row["z_mm"]] for row in lesions], atol=1e-4)
+    for text, row in zip(markers["hovertext"], lesions):
+        assert f"MLD {row['mld_mm']:.2f} mm" in text and f"best view {row['best_view']}" in text
+    assert "truth_points" in figure["angiohull"] and figure["angiohull"]["tree"]["branches"] >= 4

@@ -205,3 +205,63 @@ def test_invalid_inputs_raise_value_error(tmp_path, change, match):
         reconstruction_figure(out, **kwargs)
     assert isinstance(info.value, AngiohullError)
     assert not out.exists()  # validation happens before anything is written
+
+
+# --------------------------------------------------------------------------------------------------
+# the rasterised cloud, the error colouring, angiograms under the overlay
+# --------------------------------------------------------------------------------------------------
+
+
+def test_splat_image_nearest_point_wins_each_pixel():
+    u = np.array([2.2, 2.7, 6.0])
+    v = np.array([3.1, 3.9, 0.5])
+    depth = np.array([1.0, 5.0, 0.0])  # the second point is nearer than the first
+    image = viz.splat_image(u, v, depth, np.array([10.0, 20.0, 30.0]), (6, 8), 1)
+    expected = np.full((6, 8), np.nan)
+    expected[3, 2] = 20.0  # both points fall in pixel (row 3, col 2): the nearer one
+    expected[0, 6] = 30.0
+    np.testing.assert_array_equal(image, expected)
+    square = viz.splat_image(np.array([4.5]), np.array([2.5]), np.zeros(1), np.array([7.0]), (6, 8), 3)
+    assert np.argwhere(np.isfinite(square)).tolist() == [[r, c] for r in (1, 2, 3) for c in (3, 4, 5)]
+    clipped = viz.splat_image(np.array([0.2]), np.array([0.2]), np.zeros(1), np.array([1.0]), (4, 4), 3)
+    assert np.isfinite(clipped).sum() == 4  # the square's part inside the image
+
+
+def test_nearest_distance_is_the_brute_force_minimum():
+    rng = np.random.default_rng(5)
+    points, reference = rng.normal(size=(300, 3)) * 10, rng.normal(size=(400, 3)) * 10
+    brute = np.sqrt(((points[:, None] - reference[None]) ** 2).sum(-1)).min(axis=1)
+    np.testing.assert_allclose(viz.nearest_distance_mm(points, reference), brute, rtol=1e-12)
+    assert np.isnan(viz.nearest_distance_mm(points, np.zeros((0, 3)))).all()
+
+
+def test_view_rgb_blends_the_angiogram_under_the_classes():
+    mask = np.array([[True, True, False, False]])
+    reproj = np.array([[True, False, True, False]])
+    image = np.array([[0.0, 100.0, 50.0, 25.0]])
+    rgb = viz.view_rgb(mask, reproj, image)
+    grey = np.clip((image - np.percentile(image, 1)) / (np.percentile(image, 99) - np.percentile(image, 1)), 0, 1)[0]
+    for col, key, alpha in ((0, "both", 0.35), (1, "missed", 0.85), (2, "spurious", 0.85)):
+        expected = (1 - alpha) * grey[col] + alpha * np.asarray(OVERLAY_COLOURS[key]) / 255.0
+        np.testing.assert_allclose(rgb[0, col], expected, atol=1e-12)
+    np.testing.assert_allclose(rgb[0, 3], [grey[3]] * 3)  # neither: the angiogram alone
+    np.testing.assert_array_equal(viz.view_rgb(mask, reproj), overlay_rgb(mask, reproj) / 255.0)
+
+
+def test_figure_with_truth_scores_and_angiograms(tmp_path):
+    masks, reprojections, names = _views(2)
+    images = [np.random.default_rng(i).normal(size=masks[0].shape) for i in range(2)]
+    out = reconstruction_figure(tmp_path / "truth.png", vessel_points_mm=_helix(), masks=masks,
+                                reprojections=reprojections, view_names=names, centerline_points_mm=_helix(50),
+                                ground_truth_mm=_helix(900) + 0.5, images=[images[0], None],
+                                scores=["Dice3D 80.0 % · IoU3D 66.7 %", "tree: centerline 0.2 mm"], dpi=50)
+    image = _read_png(out)
+    alone = reconstruction_figure(tmp_path / "plain.png", vessel_points_mm=_helix(), masks=masks,
+                                  reprojections=reprojections, view_names=names, dpi=50)
+    assert image.shape[0] > _read_png(alone).shape[0]  # the truth row and the score lines
+    with pytest.raises(AngiohullError, match=r"images\[1\]"):
+        reconstruction_figure(tmp_path / "bad.png", vessel_points_mm=_helix(), masks=masks,
+                              reprojections=reprojections, view_names=names, images=[None, np.zeros((3, 3))])
+    with pytest.raises(AngiohullError, match="one entry per view"):
+        reconstruction_figure(tmp_path / "bad.png", vessel_points_mm=_helix(), masks=masks,
+                              reprojections=reprojections, view_names=names, images=[None])

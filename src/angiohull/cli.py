@@ -84,8 +84,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     p = sub.add_parser("reconstruct", help="reconstruct a study folder and write PLY, tree exports, report and figure",
                        description="Carve the visual hull of a study's masks and build its vessel tree; write "
                                    "vessel.ply, centerlines.ply, the tree (centerlines.vtp, tree.swc, tree.json), its "
-                                   "surface (vessel.stl) and lumen labels (lumen.nii.gz), report.json and figure.png "
-                                   "into OUT_DIR.")
+                                   "surface (vessel.stl) and lumen labels (lumen.nii.gz), report.json, figure.png "
+                                   "and viewer.html (interactive 3D) into OUT_DIR; a study with a ground truth is "
+                                   "scored too, as by evaluate.")
     p.add_argument("study", type=Path, metavar="STUDY_DIR", help="study folder (or its study.yaml)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="OUT_DIR", help="folder for the outputs")
     _add_reconstruction_options(p)
@@ -95,6 +96,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                    help="skip the vessel tree and its exports (centerlines.vtp, tree.swc, tree.json, vessel.stl, "
                         "lumen.nii.gz)")
     p.add_argument("--no-figure", action="store_true", help="do not draw figure.png (nor, with --qca, the QCA figures)")
+    p.add_argument("--no-viewer", action="store_true",
+                   help="do not write viewer.html (the interactive 3D viewer; `angiohull view OUT_DIR` writes it later)")
     p.add_argument("--qca", action="store_true",
                    help="then run the quantitative coronary analysis of the tree (as `angiohull qca OUT_DIR`) and "
                         "write qca.json, lesions.csv, branches.csv and its figures into OUT_DIR/qca/")
@@ -146,6 +149,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None, help="seed of every random draw (default: fresh, recorded)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     _add_qca_parser(sub)
+    _add_view_parser(sub)
     _add_dicom_commands(sub)
     _add_experiment_parsers(sub)
     return parser
@@ -169,6 +173,80 @@ def _format_scores(scores: dict) -> str:
     return text
 
 
+def _score_lines(scores: dict) -> list[str]:
+    """The scores of _format_scores in one or two short lines (3D and 2D; the tree's), for the figure."""
+    def fmt(key, unit="", digits=1):
+        value = scores.get(key)
+        return "n/a" if value is None else f"{value:.{digits}f}{unit}"
+
+    lines = [f"Dice3D {fmt('dice3d', ' %')} · IoU3D {fmt('iou3d', ' %')} · Chamfer {fmt('chamfer_mm', ' mm', 2)} · "
+             f"Dice2D {fmt('dice2d_paper', ' %')} (paper protocol), {fmt('dice2d', ' %')} (plain)"]
+    if "centerline_mean_mm" in scores:
+        lines.append(f"tree: centerline distance {fmt('centerline_mean_mm', ' mm', 2)} (p95 "
+                     f"{fmt('centerline_p95_mm', ' mm', 2)}) · Ot(1 mm) {fmt('ot1mm', '', 2)} · clDice "
+                     f"{fmt('cldice', '', 2)} · radius MAE {fmt('radius_mae_mm', ' mm', 2)} (bias "
+                     f"{fmt('radius_bias_mm', ' mm', 2)}) · branches found {scores.get('branches_found')} of "
+                     f"{scores.get('branches_true')} · bifurcations matched {scores.get('bifurcations_matched')} of "
+                     f"{scores.get('bifurcations_true')}")
+    return lines
+
+
+def _view_images(study) -> list | None:
+    """Per view, the angiogram an ``image:`` view was segmented from (read again: the study keeps only
+    the mask), else None; None when no view has one. A DICOM image without a recorded frame is read
+    with the automatic frame choice again (the default settings)."""
+    if all(view.image_path is None for view in study.views):
+        return None
+    from . import io
+    from .dicom import read_xa_view
+
+    images = []
+    for view in study.views:
+        image = None
+        if view.image_path is not None:
+            try:
+                if view.image_path.suffix.lower() in io.IMAGE_SUFFIXES:
+                    image = io.read_image(view.image_path)
+                else:
+                    image = read_xa_view(view.image_path, view.frame).image
+            except AngiohullError:  # drawn without it; the study loaded it once already
+                image = None
+            if image is not None and image.shape[:2] != view.mask.shape:
+                image = None
+        images.append(image)
+    return images
+
+
+def _run_title(study, result, options, calibration) -> str:
+    """What was run, for the figure's and the viewer's title: study, lattice, preset, calibration."""
+    if calibration is None:
+        calibrated = "no calibration"
+    else:
+        largest = max(((du * du + dv * dv) ** 0.5 for du, dv in calibration.shifts_px), default=0.0)
+        calibrated = f"calibrated shifts (largest {largest:.1f} px)"
+        if options.calibrate_scale:
+            calibrated += f" and scales ({min(calibration.scales):.3f}-{max(calibration.scales):.3f})"
+    name = f"{study.root.name} — " if study.root is not None and study.root.name else ""
+    return (f"angiohull — {name}K={result.lattice.resolution}, threshold {options.threshold_px:g} px, engine "
+            f"{result.engine}, {result.preset} preset, {calibrated}")
+
+
+def _viewer_views(study) -> list:
+    from .viewer import ViewerView
+
+    return [ViewerView(view.name, view.projection, None if view.carm is None else view.carm.sid_mm)
+            for view in study.views]
+
+
+def _check_viewer_available() -> None:
+    """Fail before the work when plotly (a dependency) is missing, not after it."""
+    from importlib.util import find_spec
+
+    if find_spec("plotly") is None:
+        raise AngiohullError("viewer.html needs the Python package plotly, which is not installed: pip install "
+                             "plotly, or pass --no-viewer")
+
+
 def _format_tree(report: dict) -> str | None:
     tree = report.get("tree")
     if not tree:
@@ -179,7 +257,12 @@ def _format_tree(report: dict) -> str | None:
             f"{tree['length_mm']:.1f} mm, radius {tree['radius_min_mm']:.2f}-{tree['radius_max_mm']:.2f} mm")
 
 
-def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, figure: bool, score: bool):
+def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, figure: bool, score: bool,
+               viewer: bool = False, viewer_state: dict | None = None):
+    """Reconstruct, score, write the outputs (with viewer.html when ``viewer``) and draw the figure.
+
+    ``viewer_state``, when given, receives the viewer's inputs (mesh included) so that the caller
+    can write the page again with more layers (the lesions of ``reconstruct --qca``)."""
     from . import workflow
 
     calibration = None
@@ -226,8 +309,28 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
                                 "after_calibration": calibration is not None}
     if calibration is not None:
         report["calibration"] = workflow.json_safe(calibration.to_dict(study.names))
+    title = _run_title(study, result, options, calibration)
     if out_dir is not None:
-        paths = workflow.write_outputs(out_dir, study, result, report)
+        extra = {}
+        if viewer:
+            inputs = dict(vessel_points_mm=result.vessel_points_mm, tree=result.tree,
+                          centerline_points_mm=result.centerline_points_mm, views=_viewer_views(study),
+                          ground_truth_mm=study.ground_truth_mm, ground_truth_tree=study.ground_truth_tree,
+                          title=title, subtitle=_score_lines(scores) if scores else ())
+            state = viewer_state if viewer_state is not None else {}
+            state.update(inputs)
+
+            def write_viewer(path: Path, outputs: dict) -> None:
+                from .viewer import viewer_html
+
+                progress("writing viewer.html")
+                mesh = outputs["mesh"]
+                if mesh is not None:
+                    state.update(mesh_vertices_mm=mesh.vertices_mm, mesh_faces=mesh.faces)
+                path.write_text(viewer_html(**state), encoding="utf-8")
+
+            extra["viewer"] = ("viewer.html", write_viewer)
+        paths = workflow.write_outputs(out_dir, study, result, report, extra=extra)
         if figure:
             from .viz import reconstruction_figure
 
@@ -236,8 +339,8 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
                 Path(out_dir) / "figure.png", vessel_points_mm=result.vessel_points_mm, masks=study.masks,
                 reprojections=silhouettes, view_names=study.names, centerline_points_mm=result.centerline_points_mm,
                 ground_truth_mm=study.ground_truth_mm, view_scores=[v["dice2d_reprojection"] for v in report["views"]],
-                title=f"angiohull — K={result.lattice.resolution}, threshold {options.threshold_px:g} px, engine "
-                      f"{result.engine}, {result.preset} preset",
+                title=title, scores=_score_lines(scores) if scores else None, images=_view_images(study),
+                lattice_spacing_mm=result.lattice_spacing_mm,
             )
         for name, path in paths.items():
             progress(f"wrote {name}: {path}")
@@ -250,13 +353,20 @@ def _cmd_reconstruct(args) -> int:
 
     if args.qca and args.no_tree:
         raise AngiohullError("--qca analyses the vessel tree, which --no-tree skips; drop one of them")
+    if not args.no_viewer:
+        _check_viewer_available()
     progress = _Progress(not args.quiet)
     study = load_study(args.study)
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines, args.device,
                                  min_views=args.min_views, calibrate=args.calibrate,
                                  calibrate_scale=args.calibrate_scale, preset=args.preset, tree=not args.no_tree)
-    result, report, _ = _run_study(study, options, args.output, progress, figure=not args.no_figure, score=False)
+    viewer_state: dict = {}
+    result, report, scores = _run_study(study, options, args.output, progress, figure=not args.no_figure,
+                                        score=study.ground_truth_mm is not None, viewer=not args.no_viewer,
+                                        viewer_state=viewer_state)
     if not args.quiet:
+        if scores is not None:
+            print(_format_scores(scores))
         per_view = ", ".join(f"{v['name']} {v['dice2d_reprojection']:.1f} %" for v in report["views"])
         print(f"{report['n_vessel_points']} vessel points, {report['n_centerline_points']} centerline points; "
               f"reprojection Dice2D: {per_view}")
@@ -272,10 +382,17 @@ def _cmd_reconstruct(args) -> int:
         # the views as the reconstruction used them (after any calibration), as report.json records them
         projections, names = report_projections(report, str(Path(args.output) / "report.json"))
         try:
-            _run_qca(result.tree, projections, names, Path(args.output) / "qca", progress, segments=(),
-                     figures=not args.no_figure, lesion_views=True, quiet=args.quiet)
+            qca_paths = _run_qca(result.tree, projections, names, Path(args.output) / "qca", progress, segments=(),
+                                 figures=not args.no_figure, lesion_views=True, quiet=args.quiet)
         except QcaError as error:
             raise QcaError(f"--qca: {error} (the reconstruction's outputs are in {args.output}/)") from None
+        if not args.no_viewer:  # the page again, now with the lesions
+            from .viewer import write_viewer
+
+            lesions = json.loads(qca_paths["qca"].read_text(encoding="utf-8"))["lesions"]
+            if lesions:
+                progress(f"writing viewer.html again with {len(lesions)} lesion marker{'s' if len(lesions) != 1 else ''}")
+                write_viewer(Path(args.output) / "viewer.html", **viewer_state, lesions=lesions)
     return 0
 
 
@@ -318,10 +435,11 @@ def _cmd_demo(args) -> int:
     progress(f"wrote the study: {study_yaml}")
     study = load_study(study_yaml)
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=True, device=args.device)
-    _, report, scores = _run_study(study, options, out, progress, figure=True, score=True)
+    _check_viewer_available()
+    _, report, scores = _run_study(study, options, out, progress, figure=True, score=True, viewer=True)
     print(_format_scores(scores))
     print(f"outputs in {out}/: vessel.ply, centerlines.ply, centerlines.vtp, tree.swc, tree.json, vessel.stl, "
-          f"lumen.nii.gz, report.json, figure.png; the study is in {out}/study/")
+          f"lumen.nii.gz, report.json, viewer.html, figure.png; the study is in {out}/study/")
     return 0
 
 
@@ -473,6 +591,74 @@ def _cmd_qca(args) -> int:
     out = args.output if args.output is not None else args.result / "qca"
     _run_qca(tree, projections, names, out, progress, segments=args.segment, figures=not args.no_figures,
              lesion_views=not args.no_views, quiet=args.quiet)
+    return 0
+
+
+# -- the interactive viewer: view ---------------------------------------------------------------------
+def _add_view_parser(sub) -> None:
+    p = sub.add_parser("view", help="write (again) the interactive 3D viewer of a reconstruction, and open it",
+                       description="Write RESULT_DIR/viewer.html from the files of a reconstruction (report.json, "
+                                   "vessel.ply, and when present tree.json, vessel.stl, centerlines.ply, qca/qca.json; "
+                                   "the ground truth from the study report.json names, or --study): one self-contained "
+                                   "page, offline, with the vessel surface or points, the centerlines coloured by "
+                                   "radius, the truth and the error colouring, each view's source, detector and X-ray "
+                                   "cone, and the lesions of a quantitative analysis.")
+    p.add_argument("result", type=Path, metavar="RESULT_DIR", help="output folder of `angiohull reconstruct`")
+    p.add_argument("-o", "--output", type=Path, default=None, metavar="FILE",
+                   help="the page to write (default RESULT_DIR/viewer.html)")
+    p.add_argument("--study", type=Path, default=None, metavar="STUDY_DIR",
+                   help="the study, for its ground truth (default: the one report.json names, when it is there)")
+    p.add_argument("--open", action="store_true", help="then open the page in the web browser")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+
+
+def _cmd_view(args) -> int:
+    from .viewer import ViewerView, write_viewer
+    from .workflow import load_result_folder
+
+    _check_viewer_available()
+    found = load_result_folder(args.result, args.study)
+    report = found.report
+    study = found.study
+    options = report.get("options") if isinstance(report.get("options"), dict) else {}
+    name = ""
+    if isinstance(report.get("study"), str) and report["study"]:
+        name = f"{Path(report['study']).name} — "
+    threshold = options.get("threshold_px")
+    threshold = f"{threshold:g}" if isinstance(threshold, (int, float)) else "?"
+    title = (f"angiohull — {name}K={options.get('resolution', '?')}, threshold {threshold} px, "
+             f"engine {report.get('engine', '?')}, {options.get('preset', '?')} preset, "
+             + ("calibrated" if options.get("calibrate") else "no calibration"))
+    scores = report.get("scores")
+    mesh = found.mesh
+    out = args.output if args.output is not None else found.folder / "viewer.html"
+    if out.is_dir():
+        raise AngiohullError(f"{out}: is a folder; -o names the page to write, e.g. {out / 'viewer.html'}")
+    path = write_viewer(
+        out, vessel_points_mm=found.vessel_points_mm, tree=found.tree,
+        mesh_vertices_mm=None if mesh is None else mesh.vertices_mm, mesh_faces=None if mesh is None else mesh.faces,
+        centerline_points_mm=found.centerline_points_mm,
+        views=[ViewerView(n, p, sid) for n, p, sid in zip(found.names, found.projections, found.sids_mm)],
+        ground_truth_mm=None if study is None else study.ground_truth_mm,
+        ground_truth_tree=None if study is None else study.ground_truth_tree,
+        lesions=found.lesions, title=title, subtitle=_score_lines(scores) if isinstance(scores, dict) else ())
+    for note in found.notes:
+        print(f"angiohull view: note: {note}", file=sys.stderr)
+    if not args.quiet:
+        layers = ["surface" if mesh is not None else "points"]
+        if found.tree is not None:
+            layers.append(f"{found.tree.n_branches} branches")
+        if study is not None and (study.ground_truth_mm is not None or study.ground_truth_tree is not None):
+            layers.append("ground truth and error")
+        if found.lesions:
+            layers.append(f"{len(found.lesions)} lesion{'s' if len(found.lesions) != 1 else ''}")
+        layers.append(f"{len(found.names)} view{'s' if len(found.names) != 1 else ''}")
+        print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB: {', '.join(layers)})")
+    if args.open:
+        import webbrowser
+
+        if not webbrowser.open(path.resolve().as_uri()):
+            print(f"angiohull view: note: no web browser could be started here; open {path} yourself", file=sys.stderr)
     return 0
 
 
@@ -719,6 +905,7 @@ def _cmd_report(args) -> int:
 
 
 _COMMANDS.update({"experiment": _cmd_experiment, "report": _cmd_report})
+_COMMANDS["view"] = _cmd_view
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -21,6 +21,7 @@ __all__ = [
     "TreeWarning",
     "AgreementWarning",
     "QcaError",
+    "ViewerError",
 ]
 
 
@@ -64,6 +65,11 @@ class QcaError(AngiohullError):
 class OutputError(AngiohullError):
     """An output folder or file cannot be written (the message names the path and the reason);
     nothing of the outputs being written is left behind."""
+
+
+class ViewerError(AngiohullError):
+    """The interactive viewer cannot be built: a result folder without what it needs, a bad layer,
+    or the plotly package missing."""
 
 
 class ReconstructionError(AngiohullError):

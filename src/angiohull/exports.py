@@ -49,7 +49,7 @@ from .errors import StudyError, TreeError
 from .tree.model import Branch, VesselTree
 from .tree.solid import LumenVolume, SurfaceMesh
 
-__all__ = ["write_centerlines_vtp", "write_swc", "write_tree_json", "read_tree_json", "write_mesh_stl",
+__all__ = ["write_centerlines_vtp", "write_swc", "write_tree_json", "read_tree_json", "write_mesh_stl", "read_mesh_stl",
            "write_lumen_nifti", "read_true_tree", "write_tree_exports", "SWC_TYPE", "EXPORT_FILES",
            "TRUE_TREE_SUFFIXES", "LPS_TO_RAS"]
 
@@ -552,6 +552,41 @@ def read_tree_json(path: PathLike) -> VesselTree:
         return VesselTree.from_dict(data, str(path))
     except TreeError as exc:
         raise StudyError(str(exc)) from None
+
+
+_STL_EXPECTED = "a binary STL mesh (the vessel.stl of angiohull reconstruct)"
+
+
+def read_mesh_stl(path: PathLike) -> SurfaceMesh:
+    """Read a binary STL (:func:`write_mesh_stl`) as a :class:`SurfaceMesh`: the facets' corners
+    welded where they are equal (float32 as stored), faces in the file's order; ``step_mm`` is nan
+    (a file does not say it).
+
+    Raises
+    ------
+    StudyError
+        If the file is missing or unreadable, is ASCII STL, or its size does not match its facet
+        count; the message starts with the path.
+    """
+    path = Path(path)
+    _require_file(path, _STL_EXPECTED)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise StudyError(f"{path}: cannot read it ({_reason(exc)}); expected {_STL_EXPECTED}") from None
+    if len(data) < 84:
+        raise StudyError(f"{path}: {len(data)} bytes, shorter than a binary STL header (84); expected {_STL_EXPECTED}")
+    count = int(np.frombuffer(data, dtype="<u4", count=1, offset=80)[0])
+    if len(data) != 84 + 50 * count:
+        ascii_hint = " (it looks like ASCII STL, which is not read)" if data[:5].lower() == b"solid" else ""
+        raise StudyError(f"{path}: {len(data)} bytes but the header announces {count} facets ({84 + 50 * count} "
+                         f"bytes){ascii_hint}; expected {_STL_EXPECTED}")
+    facet = np.dtype([("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
+    corners = np.frombuffer(data, dtype=facet, count=count, offset=84)["corners"].reshape(-1, 3)
+    if not np.isfinite(corners).all():
+        raise StudyError(f"{path}: a facet corner is not finite; expected {_STL_EXPECTED}")
+    vertices, inverse = np.unique(corners, axis=0, return_inverse=True)
+    return SurfaceMesh(vertices.astype(np.float64), inverse.reshape(-1, 3).astype(np.int64), float("nan"))
 
 
 def _numeric_rows(array: np.ndarray, where: str, expected: str) -> np.ndarray:

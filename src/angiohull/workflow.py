@@ -24,19 +24,19 @@ from .rasterise import boundary_cells, cell_silhouette
 from .reconstruction import DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ReconstructionResult, reconstruct
 from .reconstruction.calibration import (AGREEMENT_MIN_COVERAGE, Calibration, calibrate_shifts, shift_projection,
                                          view_coverage)
-from .errors import AngiohullError, GeometryError, OutputError, QcaError, StudyError
+from .errors import AngiohullError, GeometryError, OutputError, QcaError, StudyError, ViewerError
 from .geometry import Projection
 from .study import Study, View
 from .tree import VesselTree
 
 if TYPE_CHECKING:  # pragma: no cover
     from .qca import QcaResult, ViewMap
+    from .tree.solid import SurfaceMesh
 
 __all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_agreement", "agreement_warning",
-           "ambiguity_warning",
-           "view_silhouettes", "evaluation_scores",
-           "tree_evaluation_scores", "tree_summary", "build_report", "write_outputs", "json_safe",
-           "load_result_for_qca", "report_projections", "write_qca_outputs"]
+           "ambiguity_warning", "view_silhouettes", "evaluation_scores", "tree_evaluation_scores", "tree_summary",
+           "build_report", "write_outputs", "ExtraOutput", "json_safe", "load_result_for_qca", "report_projections",
+           "write_qca_outputs", "ResultFolder", "load_result_folder"]
 
 
 @dataclass(frozen=True)
@@ -299,12 +299,21 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
     return json_safe(report)
 
 
-def write_outputs(out_dir: Path, study: Study, result: ReconstructionResult, report: dict[str, Any]) -> dict[str, Path]:
+ExtraOutput = tuple[str, Callable[[Path, dict[str, Any]], None]]
+"""An output of another layer (the viewer, drawn by the CLI through :mod:`angiohull.viewer`) that
+:func:`write_outputs` writes with the others: its file name and a function ``write(path, outputs)``
+that writes the file at ``path``; ``outputs`` holds ``"mesh"`` (the tree's
+:class:`~angiohull.tree.solid.SurfaceMesh`, or None) and ``"report"`` (the report as written)."""
+
+
+def write_outputs(out_dir: Path, study: Study, result: ReconstructionResult, report: dict[str, Any], *,
+                  extra: dict[str, ExtraOutput] | None = None) -> dict[str, Path]:
     """Write ``vessel.ply``, ``centerlines.ply`` (when computed), the tree's exports (when it was
     built: ``centerlines.vtp``, ``tree.swc``, ``tree.json``, ``vessel.stl``, ``lumen.nii.gz``,
-    :func:`angiohull.exports.write_tree_exports`) and ``report.json`` (with the mesh, label volume
-    and export timings added to ``report["timings_s"]``) into ``out_dir``, all or nothing: every file
-    is written into a hidden folder inside ``out_dir`` first and moved into place when all are
+    :func:`angiohull.exports.write_tree_exports`), ``report.json`` (with the mesh, label volume
+    and export timings added to ``report["timings_s"]``) and the ``extra`` outputs (``{key: (file
+    name, write)}``, :data:`ExtraOutput`; written last) into ``out_dir``, all or nothing: every
+    file is written into a hidden folder inside ``out_dir`` first and moved into place when all are
     written.
 
     Raises
@@ -317,6 +326,7 @@ def write_outputs(out_dir: Path, study: Study, result: ReconstructionResult, rep
 
     def write(staging: Path) -> dict[str, str]:
         names = {"vessel": "vessel.ply", "report": "report.json"}
+        mesh = None
         write_points_ply(staging / names["vessel"], result.vessel_points_mm,
                          comment="angiohull visual hull (kept lattice points)")
         if result.centerline_points_mm is not None:
@@ -340,6 +350,9 @@ def write_outputs(out_dir: Path, study: Study, result: ReconstructionResult, rep
             tree_report["lumen"] = {"spacing_mm": lumen.spacing_mm, "shape": list(lumen.labels.shape),
                                     "volume_mm3": lumen.volume_mm3}
         (staging / names["report"]).write_text(json.dumps(json_safe(report), indent=2) + "\n", encoding="utf-8")
+        for key, (name, write_extra) in (extra or {}).items():
+            write_extra(staging / name, {"mesh": mesh, "report": report})
+            names[key] = name
         return names
 
     return _write_all_or_nothing(Path(out_dir), write)
@@ -378,18 +391,18 @@ def _write_all_or_nothing(out: Path, write: Callable[[Path], dict[str, str]]) ->
 _RERUN = "run `angiohull reconstruct STUDY_DIR -o OUT_DIR` again to rewrite it"
 
 
-def _read_json_object(path: Path) -> dict[str, Any]:
+def _read_json_object(path: Path, error: type[AngiohullError] = QcaError, rerun: str = _RERUN) -> dict[str, Any]:
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-        raise QcaError(f"{path}: cannot read it ({reason}); {_RERUN}") from None
+        raise error(f"{path}: cannot read it ({reason}); {rerun}") from None
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise QcaError(f"{path}: not JSON ({exc.msg} at line {exc.lineno}, column {exc.colno}); {_RERUN}") from None
+        raise error(f"{path}: not JSON ({exc.msg} at line {exc.lineno}, column {exc.colno}); {rerun}") from None
     if not isinstance(data, dict):
-        raise QcaError(f"{path}: expected a JSON object, got {type(data).__name__}; {_RERUN}")
+        raise error(f"{path}: expected a JSON object, got {type(data).__name__}; {rerun}")
     return data
 
 
@@ -482,6 +495,108 @@ def load_result_for_qca(result_dir: str | Path) -> tuple[VesselTree, list[Projec
         return tree, [], []
     projections, names = report_projections(report, str(report_path))
     return tree, projections, names
+
+
+# -- a written result as a whole, for the viewer --------------------------------------------------------
+@dataclass(frozen=True)
+class ResultFolder:
+    """What :func:`load_result_folder` found in a reconstruction's output folder."""
+
+    folder: Path
+    report: dict[str, Any]  # report.json
+    vessel_points_mm: np.ndarray  # vessel.ply, (N, 3) mm
+    centerline_points_mm: np.ndarray | None  # centerlines.ply, or None
+    tree: VesselTree | None  # tree.json, or None
+    mesh: "SurfaceMesh | None"  # vessel.stl, or None
+    projections: list[Projection]  # report.json's views, as the reconstruction used them
+    names: list[str]
+    sids_mm: list[float | None]  # each view's source-to-detector distance (C-arm views), else None
+    lesions: list[dict[str, Any]]  # qca/qca.json's "lesions" (empty without a qca.json)
+    study: Study | None  # the study, for its ground truth; None when it was not found
+    notes: list[str]  # what is left out and why, one line each
+
+
+_RERUN_VIEW = "run `angiohull reconstruct STUDY_DIR -o OUT_DIR` again to rewrite it"
+
+
+def load_result_folder(result_dir: str | Path, study_dir: str | Path | None = None) -> ResultFolder:
+    """Read a reconstruction's output folder for the viewer (``angiohull view``).
+
+    Needs ``report.json`` and ``vessel.ply``; reads ``centerlines.ply``, ``tree.json``, ``vessel.stl``
+    and ``qca/qca.json`` when they are there. The ground truth comes from the study: ``study_dir``,
+    or else the folder ``report.json`` names (``"study"``, relative to the working folder when it is
+    relative); when that one cannot be loaded the result has no study and a note says why.
+
+    Raises
+    ------
+    ViewerError
+        If the folder does not exist, has no ``report.json`` or ``vessel.ply``, or ``qca.json``'s
+        ``lesions`` is not a list of objects.
+    QcaError, StudyError
+        If report.json's views, tree.json or another file present is unreadable or invalid (the
+        message names the file); a ``study_dir`` given that cannot be loaded.
+    """
+    from .exports import read_mesh_stl, read_tree_json
+    from .io import read_points
+
+    folder = Path(result_dir)
+    if not folder.is_dir():
+        what = "not a folder" if folder.exists() else "no such folder"
+        raise ViewerError(f"{folder}: {what}; give the OUT_DIR of `angiohull reconstruct STUDY_DIR -o OUT_DIR`")
+    report_path = folder / "report.json"
+    if not report_path.is_file():
+        hint = (f"; {folder} is a study folder: reconstruct it first (`angiohull reconstruct {folder} -o OUT_DIR`)"
+                if (folder / "study.yaml").is_file() else "; give the OUT_DIR of `angiohull reconstruct`")
+        raise ViewerError(f"{report_path}: not found{hint}")
+    report = _read_json_object(report_path, ViewerError, _RERUN_VIEW)
+    vessel_path = folder / "vessel.ply"
+    if not vessel_path.is_file():
+        raise ViewerError(f"{vessel_path}: not found; {_RERUN_VIEW}")
+    notes: list[str] = []
+    try:
+        vessel = read_points(vessel_path)
+    except StudyError as exc:
+        raise ViewerError(f"{exc}; {_RERUN_VIEW}") from None
+    centerlines = read_points(folder / "centerlines.ply") if (folder / "centerlines.ply").is_file() else None
+    tree = read_tree_json(folder / "tree.json") if (folder / "tree.json").is_file() else None
+    mesh = read_mesh_stl(folder / "vessel.stl") if (folder / "vessel.stl").is_file() else None
+    projections, names = report_projections(report, str(report_path))
+    sids: list[float | None] = []
+    for view in report.get("views", []):
+        carm = view.get("carm") if isinstance(view, dict) else None
+        sid = carm.get("sid_mm") if isinstance(carm, dict) else None
+        sids.append(float(sid) if isinstance(sid, (int, float)) and math.isfinite(sid) and sid > 0 else None)
+    lesions: list[dict[str, Any]] = []
+    qca_path = folder / "qca" / "qca.json"
+    if qca_path.is_file():
+        qca = _read_json_object(qca_path, ViewerError, "run `angiohull qca RESULT_DIR` again to rewrite it")
+        rows = qca.get("lesions", [])
+        if not isinstance(rows, list) or not all(isinstance(row, dict) for row in rows):
+            raise ViewerError(f"{qca_path}: \"lesions\" must be a list of objects; run `angiohull qca {folder}` again")
+        lesions = rows
+    study = None
+    if study_dir is not None:
+        from .study import load_study
+
+        study = load_study(study_dir)
+    else:
+        named = report.get("study")
+        if isinstance(named, str) and named:
+            from .study import load_study
+
+            try:
+                study = load_study(named)
+            except AngiohullError as exc:
+                first = str(exc).splitlines()[0]
+                notes.append(f"no ground truth: the study {named} that report.json names cannot be loaded "
+                             f"({first}); give it with --study STUDY_DIR")
+        else:
+            notes.append("no ground truth: report.json names no study; give it with --study STUDY_DIR")
+    if study is not None and study.ground_truth_mm is None and study.ground_truth_tree is None:
+        notes.append(f"no ground truth: the study {study.root} has none")
+    return ResultFolder(folder=folder, report=report, vessel_points_mm=vessel, centerline_points_mm=centerlines,
+                        tree=tree, mesh=mesh, projections=projections, names=names, sids_mm=sids, lesions=lesions,
+                        study=study, notes=notes)
 
 
 def _csv_cell(value: Any) -> str:

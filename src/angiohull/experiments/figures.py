@@ -43,6 +43,14 @@ _POINT_COLOUR = "#999999"
 _DPI = 90
 
 
+def _wrapped(title: str, width_in: float, fontsize: float = 11.0) -> str:
+    """The title broken into lines that fit the figure's width (about 0.55 em per character), never cut."""
+    import textwrap
+
+    per_line = max(30, int(width_in * 72.0 / (0.55 * fontsize)))
+    return "\n".join(textwrap.wrap(title, per_line, break_long_words=False, break_on_hyphens=False)) or title
+
+
 def _grid(count: int) -> tuple[int, int]:
     cols = min(3, count)
     return (count + cols - 1) // cols, cols
@@ -82,7 +90,7 @@ def group_figure(path: str | Path, title: str, groups: Sequence[str], values: di
         ax.grid(axis="y", alpha=0.3)
         if index == 0:
             ax.legend(fontsize=7, loc="best")
-    figure.suptitle(title, fontsize=11)
+    figure.suptitle(_wrapped(title, figure.get_figwidth()), fontsize=11)
     return _save(figure, Path(path))
 
 
@@ -129,5 +137,5 @@ def curve_figure(path: str | Path, title: str, xlabel: str, x: Sequence[float], 
         ax.set_xlabel("tx (px)")
         ax.set_ylabel("ty (px)")
         ax.grid(alpha=0.3)
-    figure.suptitle(title, fontsize=11)
+    figure.suptitle(_wrapped(title, figure.get_figwidth()), fontsize=11)
     return _save(figure, Path(path))

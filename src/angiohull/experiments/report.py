@@ -274,12 +274,19 @@ def _run_section(a: dict[str, Any], figure: Optional[str]) -> list[str]:
     return lines
 
 
+def figure_title(a: dict[str, Any]) -> str:
+    """A figure's title: the experiment and its description; for a quick run, the cases it ran, the
+    description being the full experiment's (its counts are not this run's)."""
+    if a.get("mode") == "quick":
+        return (f"{a['name']}: quick run, {a['cases_done']} of {a['cases_total']} cases (the full experiment: "
+                f"{a['description']})")
+    return f"{a['name']}: {a['description']}"
+
+
 def _draw(a: dict[str, Any], path: Path) -> Path:
     metrics = a["metrics"]
     values = {m: np.asarray(a["_values"][m], dtype=float) for m in metrics}
-    title = f"{a['name']}: {a['description']}"
-    if len(title) > 110:
-        title = title[:107] + "..."
+    title = figure_title(a)
     summaries = {m: [Summary(**g["summaries"][m]) for g in a["groups"]] for m in metrics}
     if a["layout"] == "groups":
         per_group = {m: [values[m][idx][np.isfinite(values[m][idx])] for idx in a["_group_index"]] for m in metrics}
