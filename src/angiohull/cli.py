@@ -466,6 +466,7 @@ def _add_segmentation_options(parser: argparse.ArgumentParser) -> None:
         flag = "--" + item.name.replace("_", "-")
         value = getattr(default, item.name)
         text = f"{item.metadata['help']} (default {value if not isinstance(value, tuple) else ','.join(f'{v:g}' for v in value)})"
+        text = text.replace("%", "%%")  # argparse formats help texts with %: a bare % (e.g. "percentile, %") breaks --help
         if isinstance(value, bool):
             group.add_argument(flag, dest=f"seg_{item.name}", action=argparse.BooleanOptionalAction, default=None, help=text)
         elif isinstance(value, tuple):
