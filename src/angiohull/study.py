@@ -41,6 +41,7 @@ from . import _validation as _v
 from . import dicom, exports, io
 from .errors import DicomError, GeometryError, SegmentationError, StudyError
 from ._models import find_model, short_repr
+from ._yaml import read_yaml_file
 from .geometry import CArmGeometry, Projection
 from .segmentation import SegmentationParameters, segment_vessels
 from .tree import VesselTree
@@ -430,17 +431,7 @@ def _study_file(folder: Union[str, Path]) -> Path:
 
 
 def _parse_yaml(yaml_path: Path) -> dict[str, Any]:
-    try:
-        data = yaml.safe_load(yaml_path.read_bytes())
-    except OSError as exc:
-        raise StudyError(f"{yaml_path}: cannot read the study file ({exc})") from None
-    except yaml.MarkedYAMLError as exc:
-        mark = exc.problem_mark
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        context = f" ({exc.context})" if exc.context else ""
-        raise StudyError(f"{yaml_path}: invalid YAML{where}: {exc.problem}{context}") from None
-    except yaml.YAMLError as exc:
-        raise StudyError(f"{yaml_path}: invalid YAML: {exc}") from None
+    data = read_yaml_file(yaml_path, error=StudyError, what="the study file")
     if not isinstance(data, dict):
         got = "an empty file" if data is None else f"a {type(data).__name__}"
         raise StudyError(

@@ -31,10 +31,10 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
+from .._yaml import load_yaml
 from ..errors import AngiohullError
 from .._models import find_model, short_repr
 from ..synthetic.corruptions import CORRUPTION_KINDS, CorruptionSpec, parse_corruption
@@ -564,21 +564,14 @@ def load_config(source: Union[str, Path], *, quick: bool = False) -> ExperimentC
     if path.suffix in (".yaml", ".yml") or path.exists() or "/" in str(source):
         where = str(path)
         try:
-            text = path.read_text(encoding="utf-8")
+            text = path.read_bytes()
         except OSError as exc:
             raise ConfigError(f"{where}: cannot read the experiment config ({exc.strerror or exc}); expected a YAML "
                               f"file or one of the shipped names: {', '.join(shipped_config_names())}") from None
     else:
         entry = shipped_config_path(str(source))
         where = f"{source}.yaml (shipped)"
-        text = entry.read_text(encoding="utf-8")
-    try:
-        data = yaml.safe_load(text)
-    except yaml.MarkedYAMLError as exc:
-        mark = exc.problem_mark
-        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise ConfigError(f"{where}: invalid YAML{at}: {exc.problem}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{where}: invalid YAML: {exc}") from None
+        text = entry.read_bytes()
+    data = load_yaml(text, where, error=ConfigError)
     config = config_from_dict(data, where)
     return config.quick_version() if quick else config

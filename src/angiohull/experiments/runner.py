@@ -40,6 +40,7 @@ import numpy as np
 import yaml
 
 from .. import __version__
+from .._yaml import read_yaml_file
 from ..errors import AngiohullError
 from .cases import STATUSES, expand_cases, row_columns, run_case
 from .config import ConfigError, ExperimentConfig, config_from_dict, config_to_dict
@@ -163,10 +164,7 @@ def prepare_run_dir(config: ExperimentConfig, run_dir: str | Path) -> Path:
         raise AngiohullError(f"{run_dir}: not a directory")
     stored = run_dir / CONFIG_FILE
     if stored.exists():
-        try:
-            data = yaml.safe_load(stored.read_text(encoding="utf-8"))
-        except (OSError, yaml.YAMLError) as exc:
-            raise ConfigError(f"{stored}: cannot read the run's configuration ({exc})") from None
+        data = read_yaml_file(stored, error=ConfigError, what="the run's configuration")
         previous = config_from_dict(data, str(stored))
         if _canonical(previous) != _canonical(config):
             diffs = _differences(config_to_dict(previous), config_to_dict(config))
@@ -412,10 +410,7 @@ def load_run(run_dir: str | Path) -> RunData:
     if not stored.is_file():
         raise AngiohullError(f"{run_dir}: not a run directory (no {CONFIG_FILE}); run `angiohull experiment CONFIG "
                              f"-o {run_dir}` first")
-    try:
-        data = yaml.safe_load(stored.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{stored}: cannot read the run's configuration ({exc})") from None
+    data = read_yaml_file(stored, error=ConfigError, what="the run's configuration")
     config = config_from_dict(data, str(stored))
     columns = row_columns(config)
     rows_path = run_dir / ROWS_FILE
