@@ -104,3 +104,64 @@ def test_duplicate_key_names_key_and_lines(tmp_path, capsys):
     study.write_text(text, encoding="utf-8")
     line = run_fails(capsys, ["evaluate", str(study.parent)], "duplicate key 'sid_mm'")
     assert line.count("line ") == 2
+
+
+# -- sizes and thresholds: upper bounds with the reason ---------------------------------------------
+@pytest.mark.parametrize("threshold", ["300", "1e5", "1e9", "inf", "nan", "-1"])
+@pytest.mark.parametrize("command", ["reconstruct", "evaluate", "demo"])
+def test_threshold_bound(tmp_path, capsys, command, threshold):
+    study = disc_study(tmp_path / "study")
+    argv = {"reconstruct": ["reconstruct", str(study.parent), "-o", str(tmp_path / "out")],
+            "evaluate": ["evaluate", str(study.parent)], "demo": ["demo", "-o", str(tmp_path / "out")]}[command]
+    before = snapshot(tmp_path)
+    needles = ("--threshold", "at most 32 px") if threshold in ("300", "1e5", "1e9") else ("--threshold",)
+    run_fails(capsys, [*argv, "--threshold", threshold], *needles)
+    assert snapshot(tmp_path) == before
+
+
+def test_resolution_bound(tmp_path, capsys):
+    study = disc_study(tmp_path / "study")
+    run_fails(capsys, ["reconstruct", str(study.parent), "-o", str(tmp_path / "out"), "-k", "100000"],
+              "--resolution", "1024")
+    assert not (tmp_path / "out").exists()
+
+
+def test_synth_size_bound(tmp_path, capsys):
+    run_fails(capsys, ["synth", str(tmp_path / "s"), "--size", "100000", "--seed", "1"], "--size", "8192")
+    assert not (tmp_path / "s").exists()
+
+
+def _config(path: Path, *, design: str = "{type: trees, tortuosity: [simple], trees: 2, views: clinical}",
+            extra: str = "") -> Path:
+    path.write_text(f"angiohull_experiment: 1\nname: tiny\nseed: 3\ndesign: {design}\nmetrics: [dice3d]\n{extra}",
+                    encoding="utf-8")
+    return path
+
+
+@pytest.mark.parametrize("case", ["cases", "angles", "min_views", "utf8", "threshold", "duplicate"])
+def test_bad_experiment_config(tmp_path, capsys, case):
+    design, extra = "{type: trees, tortuosity: [simple], trees: 2, views: clinical}", ""
+    if case == "cases":
+        design = ("{type: trees, tortuosity: [simple, moderate, tortuous], trees: 1000000, views: clinical, sweep: "
+                  "{corruption: fp, values: {grid: {start: 0, stop: 0.1, count: 100000}}}}")
+        needles = ("design", "300,000,000,000 cases", "at most 1,000,000")
+    elif case == "angles":
+        design = '{type: trees, tortuosity: [simple], trees: 2, views: "RAO 720; LAO 30"}'
+        needles = ("design.views", "RAO 720", "180 degrees")
+    elif case == "min_views":
+        extra = "reconstruction: {min_views: 4}\n"
+        needles = ("reconstruction.min_views", "got 4", "at most 3")
+    elif case == "threshold":
+        extra = "reconstruction: {threshold_px: 1e5}\n"
+        needles = ("reconstruction.threshold_px", "at most 32 px")
+    elif case == "duplicate":
+        extra = "seed: 4\n"
+        needles = ("duplicate key 'seed'", "line 3", "line 6")
+    else:
+        needles = ("not UTF-8", "line 2")
+    config = _config(tmp_path / "c.yaml", design=design, extra=extra)
+    if case == "utf8":
+        config.write_bytes(config.read_bytes().replace(b"name: tiny", b"name: t\xffny"))
+    run_fails(capsys, ["experiment", str(config), "-o", str(tmp_path / "run"), "--workers", "1", "-q"],
+              str(config), *needles)
+    assert not (tmp_path / "run").exists()

@@ -170,6 +170,19 @@ def _format_tree(report: dict) -> str | None:
             f"{tree['length_mm']:.1f} mm, radius {tree['radius_min_mm']:.2f}-{tree['radius_max_mm']:.2f} mm")
 
 
+def _check_reconstruction_flags(args) -> None:
+    """--threshold, --resolution and --min-views within their bounds, before any file is read (the
+    message names the flag)."""
+    from .reconstruction import MAX_DENSE_RESOLUTION, check_threshold_px
+
+    check_threshold_px(args.threshold, "--threshold")
+    if args.resolution is not None and not 2 <= args.resolution <= MAX_DENSE_RESOLUTION:
+        raise AngiohullError(f"--resolution must be within [2, {MAX_DENSE_RESOLUTION}] lattice points per axis, got "
+                             f"{args.resolution}: K**3 points are carved (the paper uses 100)")
+    if getattr(args, "min_views", None) is not None and args.min_views < 1:
+        raise AngiohullError(f"--min-views must be at least 1, got {args.min_views}")
+
+
 def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, figure: bool, score: bool):
     from . import workflow
 
@@ -227,6 +240,7 @@ def _cmd_reconstruct(args) -> int:
 
     if args.qca and args.no_tree:
         raise AngiohullError("--qca analyses the vessel tree, which --no-tree skips; drop one of them")
+    _check_reconstruction_flags(args)
     progress = _Progress(not args.quiet)
     study = load_study(args.study)
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines, args.device,
@@ -260,6 +274,7 @@ def _cmd_evaluate(args) -> int:
     from .study import load_study
     from .workflow import ReconstructOptions
 
+    _check_reconstruction_flags(args)
     progress = _Progress(not args.json)
     study = load_study(args.study)
     if study.ground_truth_mm is None:
@@ -288,6 +303,7 @@ def _cmd_demo(args) -> int:
     from .study import load_study
     from .workflow import ReconstructOptions
 
+    _check_reconstruction_flags(args)
     progress = _Progress(True)
     out = args.output
     progress("drawing the built-in synthetic RCA tree (seed 2025) and rendering three clinical views")

@@ -338,6 +338,10 @@ def parse_clinical_angles(text: str) -> tuple[float, float]:
             degrees = float(value)
             if degrees < 0:
                 raise ValueError(f"cannot read clinical angles from {text!r}: give {word} a non-negative angle; the word gives the sign")
+            limit = 180.0 if word in ("LAO", "RAO") else 90.0
+            if degrees > limit:
+                raise ValueError(f"cannot read clinical angles from {text!r}: {word} {value} is beyond {limit:g} degrees "
+                                 f"({'LAO/RAO within 0-180' if limit == 180.0 else 'CRA/CAU within 0-90'})")
             if word in ("LAO", "RAO"):
                 if primary is not None:
                     raise ValueError(f"cannot read clinical angles from {text!r}: two primary angles (LAO/RAO)")

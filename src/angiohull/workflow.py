@@ -23,7 +23,8 @@ from .metrics import PAPER_DETECTOR_SPACING_MM, dice2d, dice2d_paper, paper_dila
 from .rasterise import cell_silhouette
 from .reconstruction import DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ReconstructionResult, reconstruct
 from .reconstruction.calibration import Calibration, calibrate_shifts, shift_projection
-from .errors import AngiohullError, GeometryError, OutputError, QcaError, StudyError
+from . import _validation as _v
+from .errors import AngiohullError, GeometryError, OutputError, QcaError, ReconstructionError, StudyError
 from .geometry import Projection
 from .study import Study, View
 from .tree import VesselTree
@@ -52,8 +53,18 @@ class ReconstructOptions:
     tree: bool = True  # build the vessel tree (and, when writing outputs, its mesh, label volume and exports)
 
     def __post_init__(self) -> None:
+        from .reconstruction import MAX_DENSE_RESOLUTION, check_threshold_px
+
         if self.calibrate_scale and not self.calibrate:  # scales are estimated with the shifts
             object.__setattr__(self, "calibrate", True)
+        object.__setattr__(self, "threshold_px", check_threshold_px(self.threshold_px))
+        if self.resolution is not None:
+            k = _v.positive_int(self.resolution, "resolution", error=ReconstructionError)
+            if not 2 <= k <= MAX_DENSE_RESOLUTION:
+                raise ReconstructionError(f"resolution (lattice points per axis) must be within [2, "
+                                          f"{MAX_DENSE_RESOLUTION}], got {k}: K**3 points are carved")
+        if self.min_views is not None:
+            _v.positive_int(self.min_views, "min_views", error=ReconstructionError)
 
 
 def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOptions()) -> ReconstructionResult:
