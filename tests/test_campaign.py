@@ -34,7 +34,9 @@ def disc_study(folder: Path, *, size: int = 64, radius_px: float = 6.0, shift_px
         carm = CArmGeometry(primary, 0.0, 1200.0, 800.0, (0.7, 0.7), (size, size))
         dx = shift_px if name == "lao90" else 0.0
         views.append(View.from_carm(name, (rr - c) ** 2 + (cc - c - dx) ** 2 <= radius_px ** 2, carm))
-    return save_study(folder, views)
+    points = np.random.default_rng(0).normal(size=(500, 3))
+    ball_mm = radius_px * 0.7 * 800.0 / 1200.0
+    return save_study(folder, views, ground_truth_mm=ball_mm * points / np.linalg.norm(points, axis=1, keepdims=True))
 
 
 def snapshot(root: Path, *, skip: Path | None = None) -> dict[str, tuple[int, int]]:
@@ -165,3 +167,146 @@ def test_bad_experiment_config(tmp_path, capsys, case):
     run_fails(capsys, ["experiment", str(config), "-o", str(tmp_path / "run"), "--workers", "1", "-q"],
               str(config), *needles)
     assert not (tmp_path / "run").exists()
+
+
+# -- output folders: never over an input, never half-written, no stale files, earlier results kept ----
+def _reconstruct(study: Path, out: Path, *extra: str) -> list[str]:
+    return ["reconstruct", str(study.parent), "-o", str(out), *FAST, *extra]
+
+
+def test_output_that_is_a_file_or_under_a_file(tmp_path, capsys):
+    study = disc_study(tmp_path / "study")
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("keep me")
+    before = snapshot(tmp_path)
+    run_fails(capsys, _reconstruct(study, blocker), str(blocker), "is a file")
+    run_fails(capsys, _reconstruct(study, blocker / "out"), str(blocker), "is a file, not a folder")
+    assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("code", [errno.EROFS, errno.EACCES])
+def test_output_folder_that_cannot_be_created(tmp_path, capsys, monkeypatch, code):
+    """A read-only file system or a folder without write permission (simulated: the tests may run as root)."""
+    import pathlib
+
+    study = disc_study(tmp_path / "study")
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    real = pathlib.Path.mkdir
+
+    def mkdir(self, *args, **kwargs):
+        if locked in self.parents:
+            raise OSError(code, os.strerror(code), str(self))
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "mkdir", mkdir)
+    before = snapshot(tmp_path)
+    run_fails(capsys, _reconstruct(study, locked / "a" / "out"), str(locked / "a" / "out"), os.strerror(code))
+    assert snapshot(tmp_path) == before and not any(locked.iterdir())
+
+
+@pytest.mark.parametrize("command", ["reconstruct", "report"])
+def test_full_disk_leaves_nothing_and_keeps_the_earlier_result(tmp_path, capsys, monkeypatch, command):
+    study = disc_study(tmp_path / "study")
+    out = tmp_path / "out"
+    assert main(_reconstruct(study, out)) == 0
+    earlier = snapshot(out)
+    before = snapshot(tmp_path)
+
+    def full(path, *args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    if command == "reconstruct":
+        monkeypatch.setattr("angiohull.workflow.write_points_ply", full)
+        argv = _reconstruct(study, out, "--overwrite")
+    else:  # `report` of a run, into the folder of an earlier report (replaced without --overwrite)
+        argv = ["report", str(_finished_run(tmp_path)), "-o", str(tmp_path / "report")]
+        assert main(argv) == 0
+        out = tmp_path / "report"
+        earlier, before = snapshot(out), snapshot(tmp_path)
+        monkeypatch.setattr("angiohull.experiments.rows.write_atomic", full)
+    capsys.readouterr()
+    run_fails(capsys, argv, str(out), "No space left on device", "nothing was written")
+    assert snapshot(out) == earlier and snapshot(tmp_path) == before
+    assert not [p for p in tmp_path.iterdir() if "angiohull-partial" in p.name]
+
+
+def test_non_empty_output_needs_overwrite_and_leaves_no_stale_file(tmp_path, capsys):
+    study = disc_study(tmp_path / "study")
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(study.parent), "-o", str(out), "-k", "20", "--no-tree", "-q"]) == 0
+    assert {"centerlines.ply", "figure.png"} <= {p.name for p in out.iterdir()}
+    (out / "notes.txt").write_text("mine")
+    earlier = snapshot(out)
+    run_fails(capsys, _reconstruct(study, out, "--no-centerlines"), str(out), "not empty", "--overwrite", "notes.txt")
+    assert snapshot(out) == earlier
+    assert main(_reconstruct(study, out, "--no-centerlines", "--overwrite")) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["report.json", "vessel.ply"]  # nothing of the earlier run
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_output_over_the_inputs_is_refused_even_with_overwrite(tmp_path, capsys):
+    study = disc_study(tmp_path / "study")
+    (study.parent / "masks" / "ap.png").rename(study.parent / "figure.png")
+    study.write_text(study.read_text().replace("masks/ap.png", "figure.png"))
+    before = snapshot(tmp_path)
+    for out in (study.parent, tmp_path):  # the study folder, and a folder above it
+        run_fails(capsys, _reconstruct(study, out, "--overwrite"), "an input of this command")
+        assert snapshot(tmp_path) == before
+
+
+def test_a_failure_late_in_the_run_keeps_the_earlier_result(tmp_path, capsys, monkeypatch):
+    study = disc_study(tmp_path / "study")
+    out = tmp_path / "out"
+    assert main(_reconstruct(study, out)) == 0
+    earlier = snapshot(out)
+
+    def broken(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("angiohull.workflow.build_report", broken)
+    with pytest.raises(KeyboardInterrupt):
+        main(_reconstruct(study, out, "--overwrite"))
+    assert snapshot(out) == earlier
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "study"]
+
+
+def test_demo_replaces_its_own_earlier_output(tmp_path, capsys, monkeypatch):
+    """`angiohull demo` twice in a row works; another non-empty folder needs --overwrite."""
+    monkeypatch.setattr("angiohull.demo.write_demo_study", lambda folder: disc_study(Path(folder)))
+    monkeypatch.setattr("angiohull.viz.reconstruction_figure", lambda path, **kw: Path(path).write_bytes(b"png") and Path(path))
+    out = tmp_path / "demo"
+    argv = ["demo", "-o", str(out), "-k", "20"]
+    assert main(argv) == 0
+    (out / "qca").mkdir()  # e.g. an analysis a newer demo wrote: still the demo's own
+    assert main(argv) == 0
+    assert not (out / "qca").exists() and (out / "study" / "study.yaml").is_file()
+    report = json.loads((out / "report.json").read_text())
+    assert report["study"] == str(out.resolve() / "study")  # where it is, not where it was staged
+    capsys.readouterr()
+    (out / "notes.txt").write_text("mine")
+    run_fails(capsys, argv, "not empty", "--overwrite")
+    assert main([*argv, "--overwrite"]) == 0 and not (out / "notes.txt").exists()
+
+
+def test_other_writing_commands_refuse_to_replace(tmp_path, capsys):
+    study = disc_study(tmp_path / "study")
+    before = snapshot(tmp_path)
+    run_fails(capsys, ["synth", str(study.parent), "--seed", "1", "-q"], "not empty", "--overwrite")
+    image = tmp_path / "study" / "masks" / "ap.png"
+    run_fails(capsys, ["segment", str(image), "-o", str(image)], "an input of this command")
+    run_fails(capsys, ["segment", str(image), "-o", str(tmp_path / "study" / "masks" / "lao90.png")], "exists",
+              "--overwrite")
+    run_fails(capsys, ["segment", str(image), "-o", str(tmp_path / "study")], "is a folder")
+    assert snapshot(tmp_path) == before
+
+
+def _finished_run(tmp_path: Path) -> Path:
+    """A run folder whose rows were written by hand (no case is run)."""
+    from angiohull.experiments.config import load_config
+    from angiohull.experiments.runner import prepare_run_dir
+
+    config = load_config(_config(tmp_path / "c.yaml", design="{type: angles, triplets: 2}"))
+    run = prepare_run_dir(config, tmp_path / "run-done")
+    (run / "rows.csv").write_text("")
+    return run
