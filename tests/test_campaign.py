@@ -310,3 +310,214 @@ def _finished_run(tmp_path: Path) -> Path:
     run = prepare_run_dir(config, tmp_path / "run-done")
     (run / "rows.csv").write_text("")
     return run
+
+
+# -- experiments: full disk, one runner per run directory, workers end with the runner, Dask, rows.csv --
+CHEAP = ("generator: {size: 128, pixel_mm: 1.4, rasteriser: exact}\n"
+         "reconstruction: {resolution: 20}\n")
+
+
+def _cheap_config(tmp_path: Path, trees: int = 2) -> Path:
+    return _config(tmp_path / "cheap.yaml", design=f"{{type: trees, tortuosity: [simple], trees: {trees}, views: clinical}}",
+                   extra=CHEAP)
+
+
+@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs /proc (Linux) to tell the files apart")
+def test_experiment_on_a_full_disk_keeps_every_whole_row(tmp_path, capsys, monkeypatch):
+    import angiohull.experiments.rows as rows
+
+    config, run = _cheap_config(tmp_path), tmp_path / "run"
+    real, calls = os.fsync, []
+
+    def fsync(fd):
+        if os.readlink(f"/proc/self/fd/{fd}").endswith("rows.csv"):
+            calls.append(fd)
+            if len(calls) == 2:  # the header goes through, the first row does not
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real(fd)
+
+    monkeypatch.setattr(rows.os, "fsync", fsync)
+    run_fails(capsys, ["experiment", str(config), "-o", str(run), "--workers", "1", "-q"], str(run),
+              "No space left on device", "rows.csv", "resume")
+    header = (run / "rows.csv").read_text()
+    assert header.count("\n") == 1 and header.startswith("case_id,")  # no row cut short
+    monkeypatch.setattr(rows.os, "fsync", real)
+    assert main(["experiment", str(config), "-o", str(run), "--workers", "1", "-q"]) == 0  # resumes
+    assert (run / "rows.csv").read_text().count("\n") == 3
+
+
+def test_a_second_runner_on_a_run_directory_is_refused(tmp_path, capsys):
+    from angiohull.experiments.config import load_config
+    from angiohull.experiments.runner import _RunLock, prepare_run_dir
+
+    config, run = _cheap_config(tmp_path), tmp_path / "run"
+    prepare_run_dir(load_config(config), run)
+    lock = _RunLock(run).acquire()
+    try:
+        line = run_fails(capsys, ["experiment", str(config), "-o", str(run), "--workers", "1", "-q"],
+                         str(run), "another runner", f"process {os.getpid()} on ", "started ")
+    finally:
+        lock.release()
+    assert "rows.csv" not in {p.name for p in run.iterdir()}, line
+
+
+def test_a_dead_runner_does_not_hold_the_lock(tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    from angiohull.experiments.config import load_config
+    from angiohull.experiments.runner import LOCK_FILE, prepare_run_dir, run_experiment
+
+    config, run = load_config(_cheap_config(tmp_path)), tmp_path / "run"
+    prepare_run_dir(config, run)
+    holder = subprocess.Popen([sys.executable, "-c", "import fcntl, sys, time; f = open(sys.argv[1], 'a+'); "
+                               "fcntl.flock(f, fcntl.LOCK_EX); print('held', flush=True); time.sleep(60)",
+                               str(run / LOCK_FILE)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(Exception, match="another runner"):
+            run_experiment(config, run, workers=1, stream=None, max_cases=0)
+        holder.send_signal(signal.SIGKILL)
+        holder.wait(timeout=10)
+    finally:
+        holder.kill()
+        holder.wait()
+        holder.stdout.close()
+    assert run_experiment(config, run, workers=1, stream=None, max_cases=0).done == 0  # the lock went with it
+
+
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:notaport", "tcp://", "127.0.0.1:99999", "http://127.0.0.1:8786",
+                                     "tcp://127.0.0.1 :8786", "CLOSED"])
+def test_a_bad_or_unreachable_scheduler_fails_fast(tmp_path, capsys, address):
+    import socket
+    import time
+
+    pytest.importorskip("distributed")
+    if address == "CLOSED":  # a local port nothing listens on
+        with socket.socket() as probe:
+            probe.bind(("127.0.0.1", 0))
+            address = f"tcp://127.0.0.1:{probe.getsockname()[1]}"
+    config = _cheap_config(tmp_path)
+    start = time.monotonic()
+    run_fails(capsys, ["experiment", str(config), "-o", str(tmp_path / "run"), "--scheduler", address, "-q"],
+              "--scheduler")
+    assert time.monotonic() - start < 10
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("cell", ["number", "utf8"])
+def test_a_damaged_rows_file_names_file_line_and_column(tmp_path, capsys, cell):
+    from angiohull.experiments.config import load_config
+    from angiohull.experiments.runner import run_experiment
+
+    config, run = _cheap_config(tmp_path), tmp_path / "run"
+    run_experiment(load_config(config), run, workers=1, stream=None, max_cases=1)
+    rows = run / "rows.csv"
+    header, line = rows.read_text().splitlines()
+    column = header.split(",").index("dice3d")
+    cells = line.split(",")
+    cells[column] = "eighty" if cell == "number" else "\udcff"
+    rows.write_bytes((header + "\n" + ",".join(cells) + "\n").encode("utf-8", "surrogateescape"))
+    for argv in (["experiment", str(config), "-o", str(run), "--workers", "1", "-q"],
+                 ["report", str(run), "-o", str(tmp_path / "report")]):
+        run_fails(capsys, argv, str(rows), "line 2", "column 'dice3d'")
+    assert not (tmp_path / "report").exists()
+
+
+def _children(pid: int) -> set[int]:
+    found = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid and fields[0] != "Z":
+            found.add(int(stat.parent.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not hasattr(os, "fork") or not Path("/proc/self/stat").exists(), reason="needs fork and /proc")
+def test_a_worker_ends_when_its_runner_is_killed():
+    """The worker set-up alone, in forked processes (a runner and its worker): SIGKILL of the runner
+    ends the worker at once. The whole command is tested below (slow: it starts Python three times)."""
+    import signal
+    import time
+
+    from angiohull.experiments.runner import _worker_init
+
+    read_end, write_end = os.pipe()
+    runner = os.fork()
+    if runner == 0:  # pragma: no cover - the forked runner
+        try:
+            worker = os.fork()
+            if worker == 0:
+                _worker_init(os.getppid())
+                os.write(write_end, b"ready\n")
+                time.sleep(30)
+                os._exit(0)
+            time.sleep(30)
+        finally:
+            os._exit(0)
+    os.close(write_end)
+    try:
+        with os.fdopen(read_end, "rb") as pipe:
+            assert pipe.readline() == b"ready\n"
+        workers = _children(runner)
+        assert len(workers) == 1
+        os.kill(runner, signal.SIGKILL)
+        os.waitpid(runner, 0)
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and any(_alive(pid) for pid in workers):
+            time.sleep(0.05)
+        assert not [pid for pid in workers if _alive(pid)]
+    finally:
+        for pid in (runner, *locals().get("workers", ())):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux) to find the worker processes")
+@pytest.mark.parametrize("signal_name", ["SIGKILL", "SIGTERM"])
+def test_workers_end_with_a_killed_runner(tmp_path, signal_name):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    config, run = _cheap_config(tmp_path, trees=40), tmp_path / "run"
+    runner = subprocess.Popen([sys.executable, "-m", "angiohull.cli", "experiment", str(config), "-o", str(run),
+                               "--workers", "2", "-q"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        workers: set[int] = set()
+        while time.monotonic() < deadline and runner.poll() is None:
+            workers = _children(runner.pid)
+            rows = run / "rows.csv"
+            if len(workers) >= 2 and rows.exists() and rows.read_text().count("\n") >= 2:
+                break
+            time.sleep(0.1)
+        assert runner.poll() is None and len(workers) >= 2
+        runner.send_signal(getattr(signal, signal_name))
+        runner.wait(timeout=30)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and any(_alive(pid) for pid in workers):
+            time.sleep(0.1)
+        assert not [pid for pid in workers if _alive(pid)]
+    finally:
+        runner.kill()
+        runner.wait()
+        for pid in workers if "workers" in locals() else ():
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)
