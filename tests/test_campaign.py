@@ -521,3 +521,32 @@ def test_workers_end_with_a_killed_runner(tmp_path, signal_name):
         for pid in workers if "workers" in locals() else ():
             if _alive(pid):
                 os.kill(pid, signal.SIGKILL)
+
+
+# -- paths: a study's files stay inside its folder unless it opts in ------------------------------
+@pytest.mark.parametrize("field", ["parent", "absolute", "symlink", "ground_truth"])
+def test_paths_outside_the_study_folder(tmp_path, capsys, field):
+    study = disc_study(tmp_path / "study")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    mask = study.parent / "masks" / "ap.png"
+    text = study.read_text()
+    if field == "ground_truth":
+        (study.parent / "gt.npy").rename(elsewhere / "gt.npy")
+        text, name, needle = text.replace("ground_truth: gt.npy", "ground_truth: ../elsewhere/gt.npy"), "ground_truth", "'../elsewhere/gt.npy'"
+    elif field == "symlink":
+        mask.rename(elsewhere / "ap.png")
+        mask.symlink_to(elsewhere / "ap.png")
+        name, needle = "views[0].mask", str(elsewhere / "ap.png")
+    else:
+        mask.rename(elsewhere / "ap.png")
+        new = "../elsewhere/ap.png" if field == "parent" else str(elsewhere / "ap.png")
+        text, name, needle = text.replace("masks/ap.png", new), "views[0].mask", repr(new)
+    study.write_text(text)
+    before = snapshot(tmp_path)
+    line = run_fails(capsys, ["evaluate", str(study.parent), "-k", "20"], f"{study}: {name}: ", needle,
+                     "allow_outside_paths: true")
+    assert "outside" in line or "leads out" in line or "absolute" in line
+    assert snapshot(tmp_path) == before
+    study.write_text(text + "allow_outside_paths: true\n")  # the opt-in
+    assert main(["evaluate", str(study.parent), "-k", "20", "--json"]) == 0

@@ -16,6 +16,7 @@ A study is a folder with a ``study.yaml``::
         segmentation: {high_threshold: 0.25}   # optional overrides of SegmentationParameters
     ground_truth: gt.npy              # optional: (N, 3) points in mm (.npy or .ply)
     ground_truth_tree: gt_centerlines.npz   # optional: the true vessel tree (.npz, .npy or .json)
+    allow_outside_paths: false        # optional: true to read files outside the folder
 
 Each view has exactly one geometry source (``carm``, ``projection_matrix`` or ``dicom``) and
 exactly one of ``mask`` (a binary vessel mask) and ``image`` (segmented with
@@ -330,6 +331,7 @@ class _StudyFile(_Strict):
     views: Annotated[list[_ViewEntry], Field(min_length=1)]
     ground_truth: Optional[_Text] = None
     ground_truth_tree: Optional[_Text] = None
+    allow_outside_paths: bool = False  # read files outside the study folder (off: a study is a folder)
 
     @field_validator("angiohull")
     @classmethod
@@ -572,6 +574,42 @@ def _load_view(index: int, entry: _ViewEntry, root: Path) -> View:
                 image_path=image_path)
 
 
+_PATH_FIELDS = ("mask", "image", "dicom")
+
+
+def _outside(relative: str, root: Path, field: str) -> Optional[tuple[str, str]]:
+    """``(field, message)`` when ``root / relative`` lies outside the study folder (``..``, an
+    absolute path, or a symbolic link that leads out), else None."""
+    folder = Path(os.path.realpath(root))
+    target = Path(os.path.realpath(root / relative))
+    if target == folder or folder in target.parents:
+        return None
+    how = "is an absolute path" if Path(relative).is_absolute() else "leads out of the study folder"
+    return field, (f"{relative!r} {how} ({target}); a study's files stay inside its folder ({folder}): move the "
+                   f"file in, or add 'allow_outside_paths: true' to study.yaml to read files elsewhere")
+
+
+def _outside_paths(entries: "_StudyFile", root: Path) -> list[tuple[str, str]]:
+    """Every path of the study file that lies outside the study folder (none with allow_outside_paths)."""
+    if entries.allow_outside_paths:
+        return []
+    found = []
+    for index, view in enumerate(entries.views):
+        for key in _PATH_FIELDS:
+            relative = getattr(view, key)
+            if relative is not None:
+                problem = _outside(relative, root, f"views[{index}].{key}")
+                if problem is not None:
+                    found.append(problem)
+    for key in ("ground_truth", "ground_truth_tree"):
+        relative = getattr(entries, key)
+        if relative is not None:
+            problem = _outside(relative, root, key)
+            if problem is not None:
+                found.append(problem)
+    return found
+
+
 def _load_ground_truth(relative: str, root: Path) -> tuple[np.ndarray, Path]:
     path = root / relative
     try:
@@ -612,7 +650,10 @@ def load_study(folder: Union[str, Path]) -> Study:
         than 1, zero or two geometry sources in a view, zero or two of mask/image, duplicate view
         names, missing, unreadable or empty masks, an image whose segmentation finds no vessel or
         bad segmentation overrides, an unusable DICOM file (named tag), invalid C-arm parameters
-        or matrices, and an unreadable ground truth or true tree.
+        or matrices, and an unreadable ground truth or true tree; a path (``mask:``, ``image:``,
+        ``dicom:``, ``ground_truth:``, ``ground_truth_tree:``) that leads outside the study folder
+        (``../x``, an absolute path, a symbolic link out), unless the file sets
+        ``allow_outside_paths: true``.
 
     Warns
     -----
@@ -622,6 +663,7 @@ def load_study(folder: Union[str, Path]) -> Study:
     yaml_path = _study_file(folder)
     entries = _validate(yaml_path, _parse_yaml(yaml_path))
     root = yaml_path.parent
+    _raise_problems(yaml_path, _outside_paths(entries, root))  # before any of them is read
     views: list[View] = []
     problems: list[tuple[str, str]] = []
     ground_truth, ground_truth_path = None, None
@@ -751,6 +793,8 @@ def save_study(
         document["ground_truth"] = _GROUND_TRUTH_FILE
     if ground_truth_tree_file is not None:
         document["ground_truth_tree"] = str(ground_truth_tree_file)
+    if any("dicom" in entry and _outside(entry["dicom"], folder, "dicom") is not None for entry in document["views"]):
+        document["allow_outside_paths"] = True  # a dicom: view refers to its file where it is
     return _write_yaml(folder / STUDY_FILE, document)
 
 
@@ -915,4 +959,6 @@ def study_from_dicom(
             entry["frame"] = int(index)
             document["views"].append(entry)
             summaries.append(DicomViewSummary(name, path, int(index), reason, header.frames[index].carm(), pixels))
+    if not copy and any(_outside(entry["dicom"], folder, "dicom") is not None for entry in document["views"]):
+        document["allow_outside_paths"] = True  # --reference: the runs stay where they are, on purpose
     return _write_yaml(folder / STUDY_FILE, document), summaries
