@@ -32,8 +32,8 @@ def disc_study(folder: Path, *, size: int = 64, radius_px: float = 6.0, shift_px
     views = []
     for name, primary in (("ap", 0.0), ("lao90", 90.0)):
         carm = CArmGeometry(primary, 0.0, 1200.0, 800.0, (0.7, 0.7), (size, size))
-        dx = shift_px if name == "lao90" else 0.0
-        views.append(View.from_carm(name, (rr - c) ** 2 + (cc - c - dx) ** 2 <= radius_px ** 2, carm))
+        dv = shift_px if name == "lao90" else 0.0  # both views see z along their rows: a shift parts the cones
+        views.append(View.from_carm(name, (rr - c - dv) ** 2 + (cc - c) ** 2 <= radius_px ** 2, carm))
     points = np.random.default_rng(0).normal(size=(500, 3))
     ball_mm = radius_px * 0.7 * 800.0 / 1200.0
     return save_study(folder, views, ground_truth_mm=ball_mm * points / np.linalg.norm(points, axis=1, keepdims=True))
@@ -550,3 +550,103 @@ def test_paths_outside_the_study_folder(tmp_path, capsys, field):
     assert snapshot(tmp_path) == before
     study.write_text(text + "allow_outside_paths: true\n")  # the opt-in
     assert main(["evaluate", str(study.parent), "-k", "20", "--json"]) == 0
+
+
+# -- accepted silently before: now a warning (legal but suspicious) or an error ----------------------
+def warning_lines(err: str) -> list[str]:
+    assert "Traceback" not in err, err
+    return [line for line in err.splitlines() if line.startswith("angiohull: warning: ")]
+
+
+def test_a_mask_of_all_ones_is_a_warning(tmp_path, capsys):
+    study = disc_study(tmp_path / "study")
+    write_mask(study.parent / "masks" / "lao90.png", np.ones((64, 64), bool))
+    assert main(["evaluate", str(study.parent), "-k", "20", "--json"]) == 0
+    [line] = warning_lines(capsys.readouterr().err)
+    assert f"{study}: views[1].mask: view 'lao90'" in line and "every pixel is vessel" in line and "inverted" in line
+
+
+def test_a_tiny_mask_is_a_warning(tmp_path):
+    from angiohull.errors import InputWarning
+    from angiohull.study import load_study
+
+    views = [View.from_carm("tiny", np.array([[1, 0], [0, 0]], bool), CArmGeometry(0.0, 0.0, 1200.0, 800.0, (30.0, 30.0), (2, 2))),
+             View.from_carm("big", np.eye(64, dtype=bool), CArmGeometry(90.0, 0.0, 1200.0, 800.0, (0.7, 0.7), (64, 64)))]
+    study = save_study(tmp_path / "study", views)
+    with pytest.warns(InputWarning, match=r"views\[0\]\.mask: view 'tiny' .*only 2 x 2 pixels"):
+        load_study(study)
+
+
+def test_two_views_that_share_nothing_are_an_error(tmp_path, capsys):
+    study = disc_study(tmp_path / "study", shift_px=25.0)  # the two cones miss each other
+    run_fails(capsys, _reconstruct(study, tmp_path / "out"), "empty", "lao90")
+    assert not (tmp_path / "out").exists()
+
+
+def test_an_empty_ground_truth_is_an_error(tmp_path, capsys):
+    study = disc_study(tmp_path / "study")
+    np.save(study.parent / "gt.npy", np.empty((0, 3)))
+    run_fails(capsys, ["evaluate", str(study.parent), "-k", "20"], f"{study}: ground_truth: ", "gt.npy", "no points")
+
+
+@pytest.mark.parametrize("count, outcome", [(20, "warning"), (60, "error")])
+def test_corruptions_that_erase_a_view(tmp_path, capsys, count, outcome):
+    argv = ["synth", str(tmp_path / "s"), "--size", "128", "--pixel-mm", "1.4", "--seed", "1", "--corrupt",
+            f"missing={count}", "-q"]
+    if outcome == "error":
+        run_fails(capsys, argv, "erased all", "every view needs some left")
+        assert not (tmp_path / "s").exists()
+    else:
+        assert main(argv) == 0
+        lines = warning_lines(capsys.readouterr().err)
+        assert lines and all("--corrupt: view " in line and "vessel pixels" in line for line in lines)
+
+
+# DICOM headers: the file and the tag are named
+def _xa(tmp_path: Path, name: str = "a.dcm", **extra) -> Path:
+    from _dicom_files import write_xa
+
+    image = np.full((64, 64), 180, np.uint8)
+    image[28:36, :] = 60  # a dark band: a vessel
+    return write_xa(tmp_path / name, image, **extra)
+
+
+@pytest.mark.parametrize("case, needles", [
+    ("ct", ("Modality (0008,0060) is 'CT'", "contradicts")),
+    ("flip", ("FieldOfViewHorizontalFlip (0018,7034) is YES", "mirrored")),
+    ("rotation", ("FieldOfViewRotation (0018,7032) is 90 degrees", "rotated")),
+    ("vr", ("PositionerPrimaryAngle (0018,1510)", "damaged")),
+    ("big_endian", ("TransferSyntaxUID (0002,0010)", "mislabelled")),
+])
+def test_bad_dicom_headers_are_errors(tmp_path, capsys, case, needles):
+    extra = {"ct": {"modality": "CT"}, "flip": {"FieldOfViewHorizontalFlip": "YES"},
+             "rotation": {"FieldOfViewRotation": 90}}.get(case, {})
+    path = _xa(tmp_path, **extra)
+    data = path.read_bytes()
+    if case == "vr":
+        at = data.find(b"\x18\x00\x10\x15DS")
+        path.write_bytes(data[:at + 4] + b"XX" + data[at + 6:])
+    elif case == "big_endian":
+        path.write_bytes(data.replace(b"1.2.840.10008.1.2.1\x00", b"1.2.840.10008.1.2.2\x00"))
+    run_fails(capsys, ["dicom-info", str(path)], str(path), *needles)
+
+
+@pytest.mark.parametrize("case", ["ffs", "implicit_label", "padding"])
+def test_suspicious_dicom_files_are_warnings(tmp_path, capsys, case):
+    import pydicom
+
+    path = _xa(tmp_path, **({"PatientPosition": "FFS"} if case == "ffs" else {}))
+    if case == "implicit_label":  # says Implicit VR Little Endian, holds Explicit VR
+        path.write_bytes(path.read_bytes().replace(b"1.2.840.10008.1.2.1\x00", b"1.2.840.10008.1.2\x00\x00\x00"))
+    elif case == "padding":  # pixel data longer than the image
+        ds = pydicom.dcmread(path)
+        ds.PixelData = ds.PixelData + bytes(100)
+        ds.save_as(path)
+    code = main(["segment", str(path), "-o", str(tmp_path / "m.png"), "--min-object-px", "10", "--no-collimator"])
+    err = capsys.readouterr().err
+    lines = warning_lines(err)
+    assert lines and all(str(path) in line for line in lines), err
+    expected = {"ffs": "PatientPosition (0018,5100) is 'FFS'", "implicit_label": "TransferSyntaxUID (0002,0010)",
+                "padding": "PixelData (7FE0,0010)"}[case]
+    assert any(expected in line for line in lines), lines
+    assert code in (0, 2)  # whether this toy image segments is not the point

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Sequence, TextIO
 
 from . import __version__
-from .errors import AngiohullError, DicomGeometryWarning, QcaError, TreeWarning
+from .errors import AngiohullError, DicomGeometryWarning, InputWarning, QcaError, TreeWarning
 from .reconstruction import AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES, PRESETS
 from .reconstruction.refine import REFINED
 from .synthetic.render import RASTERISERS
@@ -355,7 +355,13 @@ def _cmd_demo(args) -> int:
     return 0
 
 
+SYNTH_KEPT_WARNING = 0.25
+"""synth warns when corruptions leave a view less than this share of its true vessel pixels."""
+
+
 def _cmd_synth(args) -> int:
+    import numpy as np
+
     from .synthetic.case import SynthOptions, make_case, write_case
     from .workflow import check_output_folder, output_folder
 
@@ -367,6 +373,12 @@ def _cmd_synth(args) -> int:
     progress(f"drawing a {options.tortuosity} {options.kind} tree and rendering {len(options.geometries())} views "
              f"({options.rasteriser} rasteriser)")
     case = make_case(options)
+    for view, clean in zip(case.views, case.clean_masks):
+        kept, total = int(np.count_nonzero(view.mask & clean)), int(np.count_nonzero(clean))
+        if kept < SYNTH_KEPT_WARNING * total:
+            warnings.warn(f"--corrupt: view {view.name} keeps {kept} of its {total} vessel pixels "
+                          f"({100.0 * kept / total:.0f} %): the corruptions erased most of the vessel, so little is "
+                          f"left to reconstruct from", InputWarning, stacklevel=1)
     with output_folder(args.output, overwrite=args.overwrite, what="the study") as staged:
         study_yaml = staged.final(write_case(staged.path, case))
     if not args.quiet:
@@ -683,7 +695,7 @@ class _WarningPrinter:
         self.python = warnings.showwarning
 
     def __call__(self, message, category, filename, lineno, file=None, line=None) -> None:
-        if not issubclass(category, (DicomGeometryWarning, TreeWarning)):
+        if not issubclass(category, (DicomGeometryWarning, TreeWarning, InputWarning)):
             self.python(message, category, filename, lineno, file, line)
         elif str(message) not in self.seen:
             self.seen.add(str(message))
@@ -779,6 +791,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             warnings.showwarning = _WarningPrinter()
             warnings.simplefilter("always", DicomGeometryWarning)  # the printer shows each message once
             warnings.simplefilter("always", TreeWarning)
+            warnings.simplefilter("always", InputWarning)
             return _COMMANDS[args.command](args)
     except AngiohullError as error:
         print(f"angiohull {args.command}: error: {error}", file=sys.stderr)

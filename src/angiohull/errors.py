@@ -19,6 +19,7 @@ __all__ = [
     "SegmentationError",
     "DicomGeometryWarning",
     "TreeWarning",
+    "InputWarning",
     "QcaError",
 ]
 
@@ -101,3 +102,12 @@ class DicomGeometryWarning(UserWarning):
 class TreeWarning(UserWarning):
     """A reconstruction's vessel tree could not be built, or was built from less than the hull
     (parts dropped); the message says what and why."""
+
+
+class InputWarning(UserWarning):
+    """An input that angiohull can use but that is probably not what was meant: a mask that is
+    mostly vessel or a few pixels small, a DICOM header that contradicts itself, pixel data that
+    needed repair. The message names the file and the field or tag, and what looks wrong.
+
+    The command line prints it as one ``angiohull: warning: ...`` line.
+    """

@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 import os
 import shutil
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Iterable, Optional, Sequence, Union
@@ -40,7 +41,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from . import _validation as _v
 from . import dicom, exports, io
-from .errors import DicomError, GeometryError, SegmentationError, StudyError
+from .errors import DicomError, GeometryError, InputWarning, SegmentationError, StudyError
 from ._models import find_model, short_repr
 from ._yaml import read_yaml_file
 from .geometry import CArmGeometry, Projection
@@ -613,9 +614,13 @@ def _outside_paths(entries: "_StudyFile", root: Path) -> list[tuple[str, str]]:
 def _load_ground_truth(relative: str, root: Path) -> tuple[np.ndarray, Path]:
     path = root / relative
     try:
-        return io.read_points(path), path
+        points = io.read_points(path)
     except StudyError as exc:
         raise _Problem("ground_truth", str(exc)) from None
+    if len(points) == 0:
+        raise _Problem("ground_truth", f"{path}: holds no points; the scores against the truth are undefined without "
+                                       f"any: give the true points, or remove ground_truth: from study.yaml")
+    return points, path
 
 
 def _load_ground_truth_tree(relative: str, root: Path) -> tuple[VesselTree, Path]:
@@ -650,7 +655,7 @@ def load_study(folder: Union[str, Path]) -> Study:
         than 1, zero or two geometry sources in a view, zero or two of mask/image, duplicate view
         names, missing, unreadable or empty masks, an image whose segmentation finds no vessel or
         bad segmentation overrides, an unusable DICOM file (named tag), invalid C-arm parameters
-        or matrices, and an unreadable ground truth or true tree; a path (``mask:``, ``image:``,
+        or matrices, and an unreadable or empty ground truth or true tree; a path (``mask:``, ``image:``,
         ``dicom:``, ``ground_truth:``, ``ground_truth_tree:``) that leads outside the study folder
         (``../x``, an absolute path, a symbolic link out), unless the file sets
         ``allow_outside_paths: true``.
@@ -659,6 +664,10 @@ def load_study(folder: Union[str, Path]) -> Study:
     -----
     DicomGeometryWarning
         When a DICOM file's pixel spacing is derived from a fallback tag.
+    InputWarning
+        For a mask (read or segmented) with fewer than :data:`MIN_MASK_SIDE_PX` rows or columns,
+        or more than :data:`MAX_VESSEL_SHARE` of its pixels vessel (probably inverted), and for
+        DICOM headers that are legal but suspicious (see :func:`angiohull.dicom.read_xa_header`).
     """
     yaml_path = _study_file(folder)
     entries = _validate(yaml_path, _parse_yaml(yaml_path))
@@ -684,8 +693,32 @@ def load_study(folder: Union[str, Path]) -> Study:
         except _Problem as problem:
             problems.append((problem.field, problem.message))
     _raise_problems(yaml_path, problems)
+    for index, (entry, view) in enumerate(zip(entries.views, views)):
+        _warn_if_suspicious(yaml_path, f"views[{index}].{'mask' if entry.mask is not None else 'image'}", view)
     return Study(root=root, views=tuple(views), ground_truth_mm=ground_truth, ground_truth_path=ground_truth_path,
                  ground_truth_tree=tree, ground_truth_tree_path=tree_path)
+
+
+#: A mask with fewer rows or columns than this cannot show a vessel with background beside it.
+MIN_MASK_SIDE_PX = 4
+#: A vessel mask covering more than this share of its image is probably inverted (vessels cover a few percent).
+MAX_VESSEL_SHARE = 0.5
+
+
+def _warn_if_suspicious(yaml_path: Path, field: str, view: View) -> None:
+    """An :class:`~angiohull.errors.InputWarning` for a mask that is legal but probably not meant."""
+    rows, cols = view.mask.shape
+    source = view.mask_path if view.mask_path is not None else view.image_path
+    where = f"{yaml_path}: {field}: view {view.name!r}" + (f" ({source})" if source is not None else "")
+    if min(rows, cols) < MIN_MASK_SIDE_PX:
+        warnings.warn(f"{where}: the mask is only {rows} x {cols} pixels, too small to show a vessel and the background "
+                      f"beside it; is it the right file?", InputWarning, stacklevel=3)
+    share = float(np.count_nonzero(view.mask)) / view.mask.size
+    if share > MAX_VESSEL_SHARE:
+        what = "every pixel is vessel" if share == 1.0 else f"{100.0 * share:.0f} % of the pixels are vessel"
+        warnings.warn(f"{where}: {what}; vessels cover a few percent of an angiogram, so the mask is probably inverted "
+                      f"(vessel must be nonzero) or not a vessel mask, and the view removes almost nothing from the hull",
+                      InputWarning, stacklevel=3)
 
 
 # -- saving ---------------------------------------------------------------------------------

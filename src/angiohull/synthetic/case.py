@@ -211,7 +211,9 @@ def make_case(options: SynthOptions = SynthOptions(), *, tree_params: TreeParams
             current = after
         changed.append(tuple(counts))
         if not current.any():
-            raise AngiohullError(f"view {name}: the corruptions erased every vessel pixel")
+            raise AngiohullError(f"view {name}: the corruptions erased all {int(np.count_nonzero(mask))} vessel pixels; "
+                                 f"every view needs some left: use fewer or milder corruptions (e.g. a smaller N in "
+                                 f"missing=N, or a smaller p in fn=P)")
         views.append(View.from_carm(name, current, geometry))
     return SyntheticCase(options, seed, tree, tuple(views), tuple(clean), tuple(tuple(r) for r in records),
                          tuple(changed), surface)
