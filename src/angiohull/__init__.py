@@ -2,7 +2,7 @@
 
 Implements Lau & Dziubich, "Visual Hull-Based Approach for Coronary Vessel Three-Dimensional
 Reconstruction", Applied Sciences 2025, 15(19), 10450, with its geometry, metrics and study format
-(see DESIGN.md in the docs).
+(see docs/conventions.md).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """X-ray angiography (XA) DICOM files: C-arm geometry per frame, pixel data, frame selection.
 
 The geometry of a view is read from the header into a :class:`~angiohull.geometry.CArmGeometry`
-(DESIGN.md, "Geometry conventions"), whose :meth:`~angiohull.geometry.CArmGeometry.projection` is
+(docs/conventions.md, "Geometry conventions"), whose :meth:`~angiohull.geometry.CArmGeometry.projection` is
 the view's 3x4 matrix:
 
 ===========================  ===========================================================================

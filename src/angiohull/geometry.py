@@ -1,6 +1,6 @@
 """Acquisition geometry: projection matrices, C-arm poses and clinical angle strings.
 
-Conventions (see DESIGN.md, "Geometry conventions"):
+Conventions (see docs/conventions.md, "Geometry conventions"):
 
 * world frame: DICOM patient coordinates (LPS), millimetres, origin at the C-arm isocentre;
 * a view is a 3x4 matrix ``P`` mapping ``[X, Y, Z, 1]`` to ``[u*w, v*w, w]`` with ``u`` the column
@@ -231,7 +231,7 @@ class CArmGeometry:
                             ("image_shape", _v.image_shape(self.image_shape, error=err))):
             object.__setattr__(self, name, value)
 
-    # -- the frame of the C-arm, DESIGN.md -----------------------------------------------------
+    # -- the frame of the C-arm, docs/conventions.md -----------------------------------------------------
     def detector_direction(self) -> np.ndarray:
         """Unit vector from the isocentre towards the detector centre, ``d``."""
         a, b = math.radians(self.primary_deg), math.radians(self.secondary_deg)
@@ -371,7 +371,7 @@ def format_clinical_angles(primary_deg: float, secondary_deg: float) -> str:
 def cube_half_edge_mm(projections: Iterable[Projection]) -> float:
     """Half-edge R (mm) of the cube of interest ``[-R, R]^3`` that covers every view.
 
-    The largest :meth:`Projection.field_half_edge_mm` over the views (DESIGN.md, method step 2).
+    The largest :meth:`Projection.field_half_edge_mm` over the views (docs/conventions.md, method step 2).
     """
     values = [p.field_half_edge_mm() for p in projections]
     if not values:

@@ -1,4 +1,4 @@
-"""The study folder (DESIGN.md, "Study folder"): ``study.yaml``, masks and optional ground truth.
+"""The study folder (docs/conventions.md, "Study folder"): ``study.yaml``, masks and optional ground truth.
 
 A study is a folder with a ``study.yaml``::
 
@@ -196,7 +196,7 @@ class Study:
     views : tuple of View
         At least one view, with unique names.
     ground_truth_mm : ndarray of float64, shape (N, 3), or None
-        Ground-truth points in mm (world frame of DESIGN.md), stored read-only.
+        Ground-truth points in mm (world frame of docs/conventions.md), stored read-only.
     ground_truth_path : Path or None
         The file the ground truth was read from.
     ground_truth_tree : VesselTree or None
@@ -840,7 +840,7 @@ def _save_points(path: Path, points: np.ndarray) -> None:
 
 
 def _write_yaml(yaml_path: Path, document: dict[str, Any]) -> Path:
-    text = "# angiohull study (DESIGN.md, 'Study folder'); paths are relative to this folder\n"
+    text = "# angiohull study (docs/conventions.md, 'Study folder'); paths are relative to this folder\n"
     text += yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=4096)
     try:
         yaml_path.write_text(text, encoding="utf-8")

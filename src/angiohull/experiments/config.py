@@ -55,7 +55,7 @@ TREE_METRICS: tuple[str, ...] = ("centerline_mean_mm", "centerline_p95_mm", "ot1
 the case then builds the reconstruction's vessel tree and scores it against the generator's."""
 
 METRICS: tuple[str, ...] = ("dice3d", "iou3d", "chamfer_mm", "dice2d_paper", "dice2d", "time_s", *TREE_METRICS)
-"""Metric names a configuration may ask for (DESIGN.md, "Metrics"); ``time_s`` is the reconstruction alone."""
+"""Metric names a configuration may ask for (docs/conventions.md, "Metrics"); ``time_s`` is the reconstruction alone."""
 
 Metric = Literal["dice3d", "iou3d", "chamfer_mm", "dice2d_paper", "dice2d", "time_s", "centerline_mean_mm",
                  "centerline_p95_mm", "ot1mm", "cldice", "radius_mae_mm", "radius_bias_mm", "branch_recall",

@@ -175,7 +175,7 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     view_names : sequence of str, optional
         Used in messages and the result.
     half_edge_mm : float, optional
-        Override of the cube's half-edge R (default: from the views, DESIGN.md step 2).
+        Override of the cube's half-edge R (default: from the views, docs/conventions.md step 2).
     allow_empty : bool, keyword-only
         Return an empty result instead of raising :class:`EmptyHullError`.
     device : {"cpu", "cuda"}, keyword-only

@@ -1,7 +1,7 @@
 """A synthetic study: a drawn tree, its masks in chosen views, corruptions, and the ground truth.
 
 :func:`make_case` does the work in memory (seeded, replayable); :func:`write_case` writes a study
-folder (DESIGN.md format) plus the ground truth and the records that replay it:
+folder (docs/conventions.md format) plus the ground truth and the records that replay it:
 
 =======================  ==========================================================================
 ``study.yaml``, masks/   the study, as any other (views as ``carm:``), ``ground_truth: gt.npy``,
