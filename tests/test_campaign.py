@@ -650,3 +650,12 @@ def test_suspicious_dicom_files_are_warnings(tmp_path, capsys, case):
                 "padding": "PixelData (7FE0,0010)"}[case]
     assert any(expected in line for line in lines), lines
     assert code in (0, 2)  # whether this toy image segments is not the point
+
+
+def test_an_experiment_into_a_folder_that_holds_no_run_is_refused(tmp_path, capsys):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "thesis.tex").write_text("mine")
+    run_fails(capsys, ["experiment", str(_cheap_config(tmp_path)), "-o", str(run), "--workers", "1", "-q"],
+              str(run), "not empty", "thesis.tex")
+    assert sorted(p.name for p in run.iterdir()) == ["thesis.tex"]
