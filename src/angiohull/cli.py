@@ -374,9 +374,9 @@ def _cmd_synth(args) -> int:
              f"({options.rasteriser} rasteriser)")
     case = make_case(options)
     for view, clean in zip(case.views, case.clean_masks):
-        kept, total = int(np.count_nonzero(view.mask & clean)), int(np.count_nonzero(clean))
+        kept, total = int(np.count_nonzero(view.mask)), int(np.count_nonzero(clean))  # a shift moves, keeps
         if kept < SYNTH_KEPT_WARNING * total:
-            warnings.warn(f"--corrupt: view {view.name} keeps {kept} of its {total} vessel pixels "
+            warnings.warn(f"--corrupt: view {view.name} is left with {kept} of its {total} vessel pixels "
                           f"({100.0 * kept / total:.0f} %): the corruptions erased most of the vessel, so little is "
                           f"left to reconstruct from", InputWarning, stacklevel=1)
     with output_folder(args.output, overwrite=args.overwrite, what="the study") as staged:
@@ -796,6 +796,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except AngiohullError as error:
         print(f"angiohull {args.command}: error: {error}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # output folders are written all or nothing: nothing half-written is left
+        print(f"angiohull {args.command}: interrupted; nothing of this run was written", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover
