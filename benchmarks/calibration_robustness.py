@@ -1,4 +1,4 @@
-"""Calibration robustness (issue 23): one view moved by 5-40 px, calibrated, against the clean score.
+"""Calibration robustness: one view moved by 5-40 px, calibrated, against the clean score.
 
 For every case, one view (drawn at random) has its mask content moved by a random 5-40 px in a
 random direction, unknown to the method. The case is reconstructed from the clean masks, from the

@@ -1,4 +1,4 @@
-"""The whole pipeline's time against the authors' (issue 23), in one run.
+"""The whole pipeline's time against the authors', in one run.
 
 Measures, in this process unless said otherwise (medians of ``--repeats`` interleaved repeats after
 a first run that imports everything):
@@ -8,8 +8,8 @@ a first run that imports everything):
   and the nearest candidates; ``skimage.morphology.thin`` for comparison), the whole paper-preset
   reconstruction with centerlines (no vessel tree: the authors' code has none), and their recorded
   carving time ``peer_time_s`` (one process on a 2-core machine) plus their centerline and
-  bifurcation steps (``--peer-centerline-s``, 0.07 s, measured with their code on this machine for
-  issue 23);
+  bifurcation steps (``--peer-centerline-s``, 0.07 s, measured with their code on this 2-core
+  machine);
 * the refined preset at K = 256 on the same studies (whole reconstruction, no tree);
 * calibration: a generated tree in 3 clinical views of 512 x 512 with one view moved by 20 px
   (shifts; shifts and scales with the view also scaled by 1.05), and in 8 views with one moved;
@@ -169,7 +169,7 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--calibration-repeats", type=int, default=3)
     parser.add_argument("--peer-centerline-s", type=float, default=0.07,
-                        help="the authors' centerline and bifurcation steps, s (measured for issue 23)")
+                        help="the authors' centerline and bifurcation steps, s (measured with their code here)")
     parser.add_argument("--output", type=Path, default=None, help="Markdown report (raw numbers beside it, .json)")
     args = parser.parse_args(argv)
     wall = time.perf_counter()

@@ -8,8 +8,8 @@ checkout (../shared) or ANGIOHULL_SHARED pointing at it:
 It runs the command line exactly as a user would (the commands are printed first):
 
     angiohull dicom-info IM1.dcm IM2.dcm IM5.dcm
-    angiohull study-from-dicom IM1.dcm IM2.dcm IM5.dcm -o OUT/study --segment
-    angiohull reconstruct OUT/study -o OUT/reconstruction
+    angiohull study-from-dicom IM1.dcm IM2.dcm IM5.dcm -o OUT/study --segment --overwrite
+    angiohull reconstruct OUT/study -o OUT/reconstruction --overwrite
 
 then prints, per view, the plain reprojection Dice2D of report.json with the mask pixels the
 reconstruction covers and the reprojected pixels that fall on the mask, and draws a figure: each
@@ -99,8 +99,9 @@ def main() -> None:
         sys.exit(f"missing input files {missing}; pass --data or set ANGIOHULL_SHARED")
     out = args.output
     run(["dicom-info", *files])
-    run(["study-from-dicom", *files, "-o", str(out / "study"), "--segment"])
-    run(["reconstruct", str(out / "study"), "-o", str(out / "reconstruction")])
+    # --overwrite: the example owns its output folder, so a second run replaces the first one's results
+    run(["study-from-dicom", *files, "-o", str(out / "study"), "--segment", "--overwrite"])
+    run(["reconstruct", str(out / "study"), "-o", str(out / "reconstruction"), "--overwrite"])
 
     report = json.loads((out / "reconstruction" / "report.json").read_text())
     warnings.simplefilter("ignore", DicomGeometryWarning)  # the commands above have shown them

@@ -1,4 +1,4 @@
-"""Geometry against hand-worked cases (DESIGN.md, "Geometry conventions")."""
+"""Geometry against hand-worked cases (docs/conventions.md, "Geometry conventions")."""
 
 import math
 
@@ -91,7 +91,7 @@ def test_matrix_round_trip_camera_centre_and_focal_lengths():
 
 
 def test_carm_matrices_are_mirrored():
-    # col x row = -d for the DESIGN.md frame, so every C-arm matrix has det < 0
+    # col x row = -d for the docs/conventions.md frame, so every C-arm matrix has det < 0
     assert carm(primary=33, secondary=-12).projection().is_mirrored
 
 
@@ -119,7 +119,7 @@ def test_cube_half_edge_from_carm_formula_and_from_bare_matrix():
              carm(primary=-20, sid=1000, sod=700, spacing=(0.3, 0.3), shape=(600, 400))]
     expected = max(800 * 512 * 0.35 / (2 * 1200), 700 * 600 * 0.3 / (2 * 1000))
     assert cube_half_edge_mm([v.projection() for v in views]) == pytest.approx(expected)
-    # the authors' mirrored matrix of the peer-synthetic data (DESIGN: 59.733 mm)
+    # the authors' mirrored matrix of the peer-synthetic data (docs/conventions.md: 59.733 mm)
     peer = Projection([[0.0, 3428.5714285714284, 256.0, 204800.0], [3428.5714285714284, 0.0, 256.0, 204800.0],
                        [0.0, 0.0, 1.0, 800.0]], (512, 512))
     assert peer.is_mirrored

@@ -2,7 +2,7 @@
 
 Oracles: the conic image of a sphere (``C = (P Q* P^T)^-1``), the tangent planes of a cylinder
 parallel to the detector, scalar point-segment loops, pixel rays rebuilt from the C-arm frame of
-DESIGN.md (not from the matrix) with segments sampled densely, and the demo views.
+docs/conventions.md (not from the matrix) with segments sampled densely, and the demo views.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ def sphere(centre, radius) -> TubePhantom:
 
 
 def pixel_rays(geometry: CArmGeometry) -> tuple[np.ndarray, np.ndarray]:
-    """Unit ray directions (rows*cols, 3) from DESIGN.md's detector frame, and the source."""
+    """Unit ray directions (rows*cols, 3) from the conventions' detector frame, and the source."""
     rows, cols = geometry.image_shape
     rs, cs = geometry.pixel_spacing_mm
     cu = (cols - 1) / 2 + geometry.principal_offset_px[0]

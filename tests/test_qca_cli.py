@@ -329,3 +329,20 @@ def test_reconstruct_qca_puts_the_lesions_in_the_viewer(case):
     for text, row in zip(markers["hovertext"], lesions):
         assert f"MLD {row['mld_mm']:.2f} mm" in text and f"best view {row['best_view']}" in text
     assert "truth_points" in figure["angiohull"] and figure["angiohull"]["tree"]["branches"] >= 4
+
+
+def test_qca_replaces_its_own_earlier_analysis_and_nothing_else(case, tmp_path, capsys):
+    """`qca RESULT_DIR` again replaces RESULT_DIR/qca (an earlier run's extra lesion map goes with
+    it); a folder holding anything else needs --overwrite; RESULT_DIR itself is never an output."""
+    result = tmp_path / "result"
+    shutil.copytree(case["result"], result)
+    own = result / "qca"
+    (own / "view_map_lesion_9.png").write_bytes(b"an earlier run's map")
+    assert main(["qca", str(result), "--no-views", "--no-figures", "-q"]) == 0
+    assert sorted(p.name for p in own.iterdir()) == ["branches.csv", "lesions.csv", "qca.json"]
+    (own / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    assert main(["qca", str(result), "--no-views", "--no-figures", "-q"]) == 2
+    assert "not empty" in capsys.readouterr().err and (own / "notes.txt").is_file()
+    assert main(["qca", str(result), "-o", str(result), "--overwrite", "--no-views", "--no-figures", "-q"]) == 2
+    assert "an input of this command" in capsys.readouterr().err and (result / "tree.json").is_file()

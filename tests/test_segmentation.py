@@ -16,7 +16,7 @@ from angiohull.synthetic import demo_phantom, demo_views, generate_tree
 from angiohull.synthetic.angiogram import AngiogramParameters, render_angiogram
 
 # The acceptance level of the issue: Dice >= 0.85 against the true mask. Measured with the
-# default parameters on the five images of `rendered` (docs/dicom.md): 0.927, 0.936, 0.935, 0.938, 0.949.
+# default parameters on the five images of `rendered` (docs/dicom.md): 0.926, 0.926, 0.935, 0.942, 0.927.
 DICE_REQUIRED = 0.85
 
 
@@ -71,6 +71,29 @@ def test_integer_detector_counts_give_the_same_quality(rendered):
     image = rendered[2]
     counts = np.round(image.image / image.image.max() * 4095).astype(np.uint16)
     assert dice(segment_vessels(counts), image.mask) >= DICE_REQUIRED
+
+
+@pytest.mark.parametrize("window", ["full range", "1-99 percentiles", "offset"])
+def test_an_8_bit_png_segments_like_the_float_image(rendered, tmp_path, window):
+    """The same angiogram as a float .npy and as an 8-bit PNG linearly rescaled (to its full range,
+    to a display window that clips the darkest and brightest 1 %, or with an offset), read the way
+    `angiohull segment` and `image:` views read them: the masks agree. With the attenuation
+    log(B / I) the windowed PNG of this view segmented to Dice 0.58 where the float image gave 0.93."""
+    from PIL import Image
+
+    from angiohull.io import read_image
+
+    image = rendered[0]
+    float_path = tmp_path / "angiogram.npy"
+    np.save(float_path, image.image)
+    lo, hi = {"full range": (image.image.min(), image.image.max()),
+              "1-99 percentiles": tuple(np.percentile(image.image, [1, 99])),
+              "offset": (-0.5, image.image.max())}[window]
+    png = tmp_path / "angiogram.png"
+    Image.fromarray(np.rint(np.clip((image.image - lo) / (hi - lo), 0, 1) * 255).astype(np.uint8)).save(png)
+    from_float, from_png = segment_vessels(read_image(float_path)), segment_vessels(read_image(png))
+    assert dice(from_float, image.mask) >= DICE_REQUIRED and dice(from_png, image.mask) >= DICE_REQUIRED
+    assert dice(from_png, from_float) >= 0.97
 
 
 def test_pure_noise_gives_no_vessel():

@@ -55,8 +55,9 @@ def runs(tmp_path_factory):
 
 
 def _write(folder: Path, views: list[dict]) -> Path:
+    """A study.yaml naming the runs where the fixtures wrote them (outside the folder: opted in)."""
     path = folder / "study.yaml"
-    path.write_text(yaml.safe_dump({"angiohull": 1, "views": views}, sort_keys=False))
+    path.write_text(yaml.safe_dump({"angiohull": 1, "views": views, "allow_outside_paths": True}, sort_keys=False))
     return path
 
 
@@ -197,9 +198,11 @@ def test_study_from_dicom_segmented_and_not(tmp_path, runs):
         assert view.source == "dicom" and dice(view.mask, runs[name][1]) >= 0.85
 
     lazy, _ = study_from_dicom(files[:1], tmp_path / "lazy", copy=False, frame=2, parameters=SegmentationParameters(edge_snr=2.5))
-    entry = yaml.safe_load(lazy.read_text())["views"][0]
+    document = yaml.safe_load(lazy.read_text())
+    entry = document["views"][0]
     relative = Path(os.path.relpath(files[0], tmp_path / "lazy")).as_posix()
     assert entry == {"name": "lao", "image": relative, "dicom": relative, "frame": 2, "segmentation": {"edge_snr": 2.5}}
+    assert document["allow_outside_paths"] is True  # the runs stay where they are, outside the study: opted in
     assert load_study(tmp_path / "lazy").views[0].frame == 2
 
 

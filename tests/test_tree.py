@@ -154,7 +154,7 @@ def test_same_seed_same_tree_and_record_replays_exactly():
 def test_tree_fits_the_paper_field_of_view(rca_trees):
     for tree in rca_trees:
         lower, upper = tree.phantom.bounding_box_mm()
-        assert np.abs(np.concatenate([lower, upper])).max() < 59.7  # the cube of interest, DESIGN.md
+        assert np.abs(np.concatenate([lower, upper])).max() < 59.7  # the cube of interest, docs/conventions.md
         centre = 0.5 * (lower + upper)
         # Centred on the isocentre up to the drawn offset (radius of the bbox of the centrelines).
         assert np.abs(centre - np.asarray(tree.params.heart.centre_offset_mm)).max() < 2.6

@@ -2,7 +2,7 @@
 
 Implements Lau & Dziubich, "Visual Hull-Based Approach for Coronary Vessel Three-Dimensional
 Reconstruction", Applied Sciences 2025, 15(19), 10450, with its geometry, metrics and study format
-(see docs/architecture.md).
+(see docs/conventions.md).
 
 The names below are imported on first use, so that ``import angiohull`` (and the command line's
 ``--help``) does not load the numerical stack.

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Sequence, TextIO
 
 from . import __version__
-from .errors import AgreementWarning, AngiohullError, DicomGeometryWarning, QcaError, TreeWarning
+from .errors import AgreementWarning, AngiohullError, DicomGeometryWarning, InputWarning, QcaError, TreeWarning
 from .options import (AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES, PRESETS, RASTERISERS,
                       REFINED_RESOLUTION, TORTUOSITY_LEVELS, TREE_KINDS)
 
@@ -89,6 +89,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                                    "scored too, as by evaluate.")
     p.add_argument("study", type=Path, metavar="STUDY_DIR", help="study folder (or its study.yaml)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="OUT_DIR", help="folder for the outputs")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace what OUT_DIR holds (a non-empty OUT_DIR is refused otherwise); the new outputs are "
+                        "written beside it first and replace it only once complete")
     _add_reconstruction_options(p)
     _add_beyond_paper_options(p)
     p.add_argument("--no-centerlines", action="store_true", help="skip the centerline extraction (centerlines.ply)")
@@ -122,6 +125,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                                    "clinical views, reconstruct it, score it, and write everything into OUT_DIR.")
     p.add_argument("-o", "--output", type=Path, default=Path("angiohull-demo"), metavar="OUT_DIR",
                    help="output folder (default ./angiohull-demo)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a non-empty OUT_DIR (an earlier demo's folder is replaced without it)")
     _add_reconstruction_options(p)
 
     p = sub.add_parser("synth", help="generate a synthetic coronary tree study with ground truth",
@@ -130,6 +135,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                                    "gt_lumen.npy, gt_centerlines.npz, tree.json (the tree's record) and "
                                    "synthetic.json (options, seed, corruption records).")
     p.add_argument("output", type=Path, metavar="OUT_DIR", help="study folder to write")
+    p.add_argument("--overwrite", action="store_true", help="replace what OUT_DIR holds (refused otherwise)")
     p.add_argument("--tree", choices=TREE_KINDS, default="rca", help="right coronary tree or left tree (default rca)")
     p.add_argument("--tortuosity", default="moderate", metavar="LEVEL",
                    help=f"one of {', '.join(TORTUOSITY_LEVELS)} (default moderate)")
@@ -257,9 +263,34 @@ def _format_tree(report: dict) -> str | None:
             f"{tree['length_mm']:.1f} mm, radius {tree['radius_min_mm']:.2f}-{tree['radius_max_mm']:.2f} mm")
 
 
-def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, figure: bool, score: bool,
-               viewer: bool = False, viewer_state: dict | None = None):
-    """Reconstruct, score, write the outputs (with viewer.html when ``viewer``) and draw the figure.
+def _check_reconstruction_flags(args) -> None:
+    """--threshold, --resolution and --min-views within their bounds, before any file is read (the
+    message names the flag)."""
+    from .reconstruction import MAX_DENSE_RESOLUTION, check_threshold_px
+
+    check_threshold_px(args.threshold, "--threshold")
+    if args.resolution is not None and not 2 <= args.resolution <= MAX_DENSE_RESOLUTION:
+        raise AngiohullError(f"--resolution must be within [2, {MAX_DENSE_RESOLUTION}] lattice points per axis, got "
+                             f"{args.resolution}: K**3 points are carved (the paper uses 100)")
+    if getattr(args, "min_views", None) is not None and args.min_views < 1:
+        raise AngiohullError(f"--min-views must be at least 1, got {args.min_views}")
+
+
+def _relocated(value, old: str, new: str):
+    """``value`` (JSON data) with every text that starts with the folder ``old`` moved to ``new``."""
+    if isinstance(value, dict):
+        return {k: _relocated(v, old, new) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_relocated(v, old, new) for v in value]
+    if isinstance(value, str) and (value == old or value.startswith(old + "/")):
+        return new + value[len(old):]
+    return value
+
+
+def _run_study(study, options, staged, progress: _Progress, *, figure: bool, score: bool, viewer: bool = False,
+               viewer_state: dict | None = None):
+    """Reconstruct (and score) a loaded study; with ``staged`` (a workflow.StagedFolder), write
+    the outputs (with viewer.html when ``viewer``) and the figure into ``staged.path``.
 
     ``viewer_state``, when given, receives the viewer's inputs (mesh included) so that the caller
     can write the page again with more layers (the lesions of ``reconstruct --qca``)."""
@@ -310,7 +341,9 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
     if calibration is not None:
         report["calibration"] = workflow.json_safe(calibration.to_dict(study.names))
     title = _run_title(study, result, options, calibration)
-    if out_dir is not None:
+    if staged is not None:
+        # a study written into the staged folder (the demo's) is reported where it will be
+        report = _relocated(report, str(staged.path), str(staged.target))
         extra = {}
         if viewer:
             inputs = dict(vessel_points_mm=result.vessel_points_mm, tree=result.tree,
@@ -330,40 +363,64 @@ def _run_study(study, options, out_dir: Path | None, progress: _Progress, *, fig
                 path.write_text(viewer_html(**state), encoding="utf-8")
 
             extra["viewer"] = ("viewer.html", write_viewer)
-        paths = workflow.write_outputs(out_dir, study, result, report, extra=extra)
+        paths = workflow.write_outputs(staged.path, study, result, report, extra=extra)
         if figure:
             from .viz import reconstruction_figure
 
             progress("drawing figure.png")
             paths["figure"] = reconstruction_figure(
-                Path(out_dir) / "figure.png", vessel_points_mm=result.vessel_points_mm, masks=study.masks,
+                staged.path / "figure.png", vessel_points_mm=result.vessel_points_mm, masks=study.masks,
                 reprojections=silhouettes, view_names=study.names, centerline_points_mm=result.centerline_points_mm,
                 ground_truth_mm=study.ground_truth_mm, view_scores=[v["dice2d_reprojection"] for v in report["views"]],
                 title=title, scores=_score_lines(scores) if scores else None, images=_view_images(study),
                 lattice_spacing_mm=result.lattice_spacing_mm,
             )
         for name, path in paths.items():
-            progress(f"wrote {name}: {path}")
+            progress(f"wrote {name}: {staged.final(path)}")
     return result, report, scores
 
 
 def _cmd_reconstruct(args) -> int:
     from .study import load_study
-    from .workflow import ReconstructOptions
+    from .workflow import ReconstructOptions, check_output_folder, output_folder, study_inputs
 
     if args.qca and args.no_tree:
         raise AngiohullError("--qca analyses the vessel tree, which --no-tree skips; drop one of them")
     if not args.no_viewer:
         _check_viewer_available()
+    _check_reconstruction_flags(args)
+    check_output_folder(args.output, inputs=[args.study], overwrite=args.overwrite)  # before the work
     progress = _Progress(not args.quiet)
     study = load_study(args.study)
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines, args.device,
                                  min_views=args.min_views, calibrate=args.calibrate,
                                  calibrate_scale=args.calibrate_scale, preset=args.preset, tree=not args.no_tree)
+    qca_error, qca_lines = None, []
     viewer_state: dict = {}
-    result, report, scores = _run_study(study, options, args.output, progress, figure=not args.no_figure,
-                                        score=study.ground_truth_mm is not None, viewer=not args.no_viewer,
-                                        viewer_state=viewer_state)
+    with output_folder(args.output, inputs=[args.study, *study_inputs(study)], overwrite=args.overwrite) as staged:
+        result, report, scores = _run_study(study, options, staged, progress, figure=not args.no_figure,
+                                            score=study.ground_truth_mm is not None, viewer=not args.no_viewer,
+                                            viewer_state=viewer_state)
+        if args.qca and result.tree is not None:
+            from .workflow import report_projections
+
+            # the views as the reconstruction used them (after any calibration), as report.json records them
+            projections, names = report_projections(report, str(staged.target / "report.json"))
+            try:
+                qca_paths, qca_lines = _run_qca(result.tree, projections, names, staged.path / "qca", progress,
+                                                segments=(), figures=not args.no_figure, lesion_views=True,
+                                                final_dir=staged.target / "qca")
+            except QcaError as error:  # the reconstruction's outputs are kept
+                qca_error = QcaError(f"--qca: {error} (the reconstruction's outputs are in {staged.target}/)")
+            else:
+                if not args.no_viewer:  # the page again, now with the lesions
+                    from .viewer import write_viewer
+
+                    lesions = json.loads(qca_paths["qca"].read_text(encoding="utf-8"))["lesions"]
+                    if lesions:
+                        progress(f"writing viewer.html again with {len(lesions)} lesion "
+                                 f"marker{'s' if len(lesions) != 1 else ''}")
+                        write_viewer(staged.path / "viewer.html", **viewer_state, lesions=lesions)
     if not args.quiet:
         if scores is not None:
             print(_format_scores(scores))
@@ -374,25 +431,13 @@ def _cmd_reconstruct(args) -> int:
         if tree_line:
             print(tree_line)
     if args.qca:
-        from .workflow import report_projections
-
         if result.tree is None:
             raise AngiohullError(f"--qca: the reconstruction built no vessel tree ({result.tree_error}), so there is "
-                                 f"nothing to analyse; the other outputs are in {args.output}/")
-        # the views as the reconstruction used them (after any calibration), as report.json records them
-        projections, names = report_projections(report, str(Path(args.output) / "report.json"))
-        try:
-            qca_paths = _run_qca(result.tree, projections, names, Path(args.output) / "qca", progress, segments=(),
-                                 figures=not args.no_figure, lesion_views=True, quiet=args.quiet)
-        except QcaError as error:
-            raise QcaError(f"--qca: {error} (the reconstruction's outputs are in {args.output}/)") from None
-        if not args.no_viewer:  # the page again, now with the lesions
-            from .viewer import write_viewer
-
-            lesions = json.loads(qca_paths["qca"].read_text(encoding="utf-8"))["lesions"]
-            if lesions:
-                progress(f"writing viewer.html again with {len(lesions)} lesion marker{'s' if len(lesions) != 1 else ''}")
-                write_viewer(Path(args.output) / "viewer.html", **viewer_state, lesions=lesions)
+                                 f"nothing to analyse; the other outputs are in {staged.target}/")
+        if qca_error is not None:
+            raise qca_error
+        if not args.quiet:
+            print("\n".join(qca_lines))
     return 0
 
 
@@ -400,6 +445,7 @@ def _cmd_evaluate(args) -> int:
     from .study import load_study
     from .workflow import ReconstructOptions
 
+    _check_reconstruction_flags(args)
     progress = _Progress(not args.json)
     study = load_study(args.study)
     if study.ground_truth_mm is None:
@@ -423,37 +469,61 @@ def _cmd_evaluate(args) -> int:
     return 0
 
 
+DEMO_OUTPUTS = ("study", "vessel.ply", "centerlines.ply", "centerlines.vtp", "tree.swc", "tree.json", "vessel.stl",
+                "lumen.nii.gz", "report.json", "figure.png", "viewer.html", "qca")
+"""What `angiohull demo` writes: a folder holding only these is an earlier demo, which a new one replaces."""
+
+
 def _cmd_demo(args) -> int:
     from .demo import write_demo_study
     from .study import load_study
-    from .workflow import ReconstructOptions
+    from .workflow import ReconstructOptions, folder_holds_only, output_folder
 
-    progress = _Progress(True)
-    out = args.output
-    progress("drawing the built-in synthetic RCA tree (seed 2025) and rendering three clinical views")
-    study_yaml = write_demo_study(out / "study")
-    progress(f"wrote the study: {study_yaml}")
-    study = load_study(study_yaml)
+    _check_reconstruction_flags(args)
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=True, device=args.device)
     _check_viewer_available()
-    _, report, scores = _run_study(study, options, out, progress, figure=True, score=True, viewer=True)
+    progress = _Progress(True)
+    # the demo's own earlier output (run it twice) is replaced; any other non-empty folder needs --overwrite
+    with output_folder(args.output, overwrite=args.overwrite, what="the demo",
+                       replaceable=lambda folder: folder_holds_only(folder, DEMO_OUTPUTS)) as staged:
+        progress("drawing the built-in synthetic RCA tree (seed 2025) and rendering three clinical views")
+        study_yaml = write_demo_study(staged.path / "study")
+        progress(f"wrote the study: {staged.final(study_yaml)}")
+        study = load_study(study_yaml)
+        _, report, scores = _run_study(study, options, staged, progress, figure=True, score=True, viewer=True)
+    out = staged.target
     print(_format_scores(scores))
     print(f"outputs in {out}/: vessel.ply, centerlines.ply, centerlines.vtp, tree.swc, tree.json, vessel.stl, "
           f"lumen.nii.gz, report.json, viewer.html, figure.png; the study is in {out}/study/")
     return 0
 
 
+SYNTH_KEPT_WARNING = 0.25
+"""synth warns when corruptions leave a view less than this share of its true vessel pixels."""
+
+
 def _cmd_synth(args) -> int:
+    import numpy as np
+
     from .synthetic.case import SynthOptions, make_case, write_case
+    from .workflow import check_output_folder, output_folder
 
     progress = _Progress(not args.quiet)
     options = SynthOptions(kind=args.tree, tortuosity=args.tortuosity, views=args.views, sid_mm=args.sid_mm,
                            sod_mm=args.sod_mm, pixel_mm=args.pixel_mm, size=args.size, rasteriser=args.rasteriser,
                            corruptions=tuple(args.corrupt), seed=args.seed)
+    check_output_folder(args.output, overwrite=args.overwrite, what="the study")  # before the work
     progress(f"drawing a {options.tortuosity} {options.kind} tree and rendering {len(options.geometries())} views "
              f"({options.rasteriser} rasteriser)")
     case = make_case(options)
-    study_yaml = write_case(args.output, case)
+    for view, clean in zip(case.views, case.clean_masks):
+        kept, total = int(np.count_nonzero(view.mask)), int(np.count_nonzero(clean))  # a shift moves, keeps
+        if kept < SYNTH_KEPT_WARNING * total:
+            warnings.warn(f"--corrupt: view {view.name} is left with {kept} of its {total} vessel pixels "
+                          f"({100.0 * kept / total:.0f} %): the corruptions erased most of the vessel, so little is "
+                          f"left to reconstruct from", InputWarning, stacklevel=1)
+    with output_folder(args.output, overwrite=args.overwrite, what="the study") as staged:
+        study_yaml = staged.final(write_case(staged.path, case))
     if not args.quiet:
         summary = case.tree.summary()
         lengths = ", ".join(f"{b['name']} {b['length_mm']:.0f} mm" for b in summary["branches"])
@@ -495,6 +565,8 @@ def _add_qca_parser(sub) -> None:
                    help="output folder of `angiohull reconstruct` (holds tree.json)")
     p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT_DIR",
                    help="folder for the outputs (default RESULT_DIR/qca)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a non-empty OUT_DIR (a folder holding only an earlier analysis is replaced without it)")
     p.add_argument("--segment", type=_segment_spec, action="append", default=[], metavar="BRANCH[:START-END]",
                    help="repeatable: also the view map of this segment (view_map_segment_*.png, and under "
                         "segment_views in qca.json), e.g. 2:10-30 = branch 2 from 10 to 30 mm of arc, 2 = all of "
@@ -527,8 +599,9 @@ def _format_lesion(i: int, row: dict) -> str:
 
 
 def _run_qca(tree, projections, names, out_dir: Path, progress: _Progress, *, segments, figures: bool,
-             lesion_views: bool, quiet: bool) -> dict[str, Path]:
-    """Analyse ``tree``, write the files and figures into ``out_dir`` and print the lesions."""
+             lesion_views: bool, final_dir: Path) -> tuple[dict[str, Path], list[str]]:
+    """Analyse ``tree``, write the files and figures into ``out_dir`` (to be moved to ``final_dir``);
+    return the paths written and the lines that report the lesions."""
     from .qca import QcaSettings, analyse_tree, segment_view_map
     from .qca.views import segment_points
     from .workflow import write_qca_outputs
@@ -558,30 +631,31 @@ def _run_qca(tree, projections, names, out_dir: Path, progress: _Progress, *, se
             key = f"view_map_segment_{vm.branch}_{_format_mm_range(vm.start_mm)}-{_format_mm_range(vm.end_mm)}"
             title = f"segment: {_branch_text(tree, vm.branch)}, arc {vm.start_mm:.1f}-{vm.end_mm:.1f} mm"
             paths[key] = qca_view_map_figure(vm, out_dir / f"{key}.png", title)
-    if not quiet:
-        rows = result.lesion_rows()
-        for i, row in enumerate(rows):
-            print(_format_lesion(i, row))
-        for vm in segment_maps:
-            fs, overlap = vm.best_foreshortening, vm.best_overlap
-            print(f"segment {_branch_text(tree, vm.branch)} {vm.start_mm:.1f}-{vm.end_mm:.1f} mm: best view "
-                  f"{vm.best_name} (foreshortening {fs:.2f}, overlap {100.0 * overlap:.0f} %)")
-        worst = max(result.lesions, key=lambda les: les.diameter_stenosis_pct, default=None)
-        without = sum(b.profile.reference is None for b in result.branches)
-        summary = (f"{len(result.lesions)} lesion{'s' if len(result.lesions) != 1 else ''} in {tree.n_branches} "
-                   f"branch{'es' if tree.n_branches != 1 else ''} ({tree.length_mm:.1f} mm), "
-                   f"{len(result.bifurcations)} bifurcation{'s' if len(result.bifurcations) != 1 else ''}")
-        if worst is not None:
-            summary += f"; max {worst.diameter_stenosis_pct:.1f} % DS ({_branch_text(tree, worst.branch)})"
-        if without:
-            summary += f"; {without} branch{'es' if without != 1 else ''} too short for a reference diameter"
-        print(summary)
-        print(f"outputs in {out_dir}/: {', '.join(path.name for path in paths.values())}")
-    return paths
+    lines = [_format_lesion(i, row) for i, row in enumerate(result.lesion_rows())]
+    for vm in segment_maps:
+        fs, overlap = vm.best_foreshortening, vm.best_overlap
+        lines.append(f"segment {_branch_text(tree, vm.branch)} {vm.start_mm:.1f}-{vm.end_mm:.1f} mm: best view "
+                     f"{vm.best_name} (foreshortening {fs:.2f}, overlap {100.0 * overlap:.0f} %)")
+    worst = max(result.lesions, key=lambda les: les.diameter_stenosis_pct, default=None)
+    without = sum(b.profile.reference is None for b in result.branches)
+    summary = (f"{len(result.lesions)} lesion{'s' if len(result.lesions) != 1 else ''} in {tree.n_branches} "
+               f"branch{'es' if tree.n_branches != 1 else ''} ({tree.length_mm:.1f} mm), "
+               f"{len(result.bifurcations)} bifurcation{'s' if len(result.bifurcations) != 1 else ''}")
+    if worst is not None:
+        summary += f"; max {worst.diameter_stenosis_pct:.1f} % DS ({_branch_text(tree, worst.branch)})"
+    if without:
+        summary += f"; {without} branch{'es' if without != 1 else ''} too short for a reference diameter"
+    lines.append(summary)
+    lines.append(f"outputs in {final_dir}/: {', '.join(path.name for path in paths.values())}")
+    return paths, lines
+
+
+QCA_OUTPUTS = ("qca.json", "lesions.csv", "branches.csv", "profiles.png", "view_map_*.png")
+"""What `angiohull qca` writes: a folder holding only these is an earlier analysis, replaced by a new one."""
 
 
 def _cmd_qca(args) -> int:
-    from .workflow import load_result_for_qca
+    from .workflow import folder_holds_only, load_result_for_qca, output_folder
 
     progress = _Progress(not args.quiet)
     tree, projections, names = load_result_for_qca(args.result)
@@ -589,8 +663,14 @@ def _cmd_qca(args) -> int:
         why = "its report.json lists none" if (args.result / "report.json").is_file() else "no report.json"
         progress(f"no acquired views in {args.result} ({why}): qca.json gets no per-view foreshortening and overlap")
     out = args.output if args.output is not None else args.result / "qca"
-    _run_qca(tree, projections, names, out, progress, segments=args.segment, figures=not args.no_figures,
-             lesion_views=not args.no_views, quiet=args.quiet)
+    inputs = [args.result / name for name in ("tree.json", "report.json") if (args.result / name).exists()]
+    # its own folder (RESULT_DIR/qca by default) holding only an earlier analysis is replaced
+    with output_folder(out, inputs=inputs, overwrite=args.overwrite, what="the analysis",
+                       replaceable=lambda folder: folder_holds_only(folder, QCA_OUTPUTS)) as staged:
+        _, lines = _run_qca(tree, projections, names, staged.path, progress, segments=args.segment,
+                            figures=not args.no_figures, lesion_views=not args.no_views, final_dir=staged.target)
+    if not args.quiet:
+        print("\n".join(lines))
     return 0
 
 
@@ -685,6 +765,7 @@ def _add_segmentation_options(parser: argparse.ArgumentParser, command: str) -> 
         flag = "--" + item.name.replace("_", "-")
         value = getattr(default, item.name)
         text = f"{item.metadata['help']} (default {value if not isinstance(value, tuple) else ','.join(f'{v:g}' for v in value)})"
+        text = text.replace("%", "%%")  # argparse formats help texts with %: a bare % (e.g. "percentile, %") breaks --help
         if isinstance(value, bool):
             group.add_argument(flag, dest=f"seg_{item.name}", action=argparse.BooleanOptionalAction, default=None, help=text)
         elif isinstance(value, tuple):
@@ -723,6 +804,7 @@ def _add_dicom_commands(sub) -> None:
                                    "and write the mask (PNG/TIFF/NPY by extension).")
     p.add_argument("input", type=Path, metavar="INPUT", help="XA DICOM file, or a grey-scale PNG/TIFF/NPY image")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="MASK", help="the mask to write (.png, .tif, .npy)")
+    p.add_argument("--overwrite", action="store_true", help="replace MASK if it exists (refused otherwise)")
     p.add_argument("--frame", type=int, default=None, metavar="N",
                    help="frame index from 0 (default: the frame with the most contrast, or the end-diastolic frame nearest to it)")
     _add_segmentation_options(p, "segment")
@@ -733,6 +815,7 @@ def _add_dicom_commands(sub) -> None:
                                    "DICOM image and are segmented when the study is loaded.")
     p.add_argument("files", type=Path, nargs="+", metavar="FILE", help="XA DICOM files")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="STUDY_DIR", help="the study folder to write")
+    p.add_argument("--overwrite", action="store_true", help="replace what STUDY_DIR holds (refused otherwise)")
     p.add_argument("--segment", action="store_true", help="segment now and write masks/<name>.png")
     frames = p.add_mutually_exclusive_group()
     frames.add_argument("--frame", type=int, default=None, metavar="N", help="use frame N (from 0) of every file "
@@ -783,8 +866,11 @@ def _cmd_segment(args) -> int:
     from . import io
     from .dicom import read_xa_view
     from .segmentation import segment_vessels
+    from .workflow import check_output_file, output_file
 
     params = _segmentation_parameters(args)
+    # refused before the work: an existing file without --overwrite, the input itself, a folder
+    check_output_file(args.output, inputs=[args.input], overwrite=args.overwrite, what="the mask")
     if args.input.suffix.lower() in io.IMAGE_SUFFIXES:
         if args.frame is not None:
             raise AngiohullError(f"{args.input}: --frame is only used with a DICOM file")
@@ -796,17 +882,21 @@ def _cmd_segment(args) -> int:
     if not mask.any():
         raise AngiohullError(f"{where}: the segmentation found no vessel; nothing written (try a lower --high-threshold "
                              "or --seed-snr, or --vessels bright for an inverted display)")
-    io.write_mask(args.output, mask)
+    with output_file(args.output, inputs=[args.input], overwrite=args.overwrite, what="the mask") as partial:
+        io.write_mask(partial, mask)
     print(f"{where}: {int(mask.sum())} vessel pixels of {mask.size}; wrote {args.output}")
     return 0
 
 
 def _cmd_study_from_dicom(args) -> int:
     from .study import study_from_dicom
+    from .workflow import output_folder
 
-    yaml_path, views = study_from_dicom(args.files, args.output, segment=args.segment, frame=args.frame,
-                                        all_frames=args.all_frames, copy=not args.reference,
-                                        parameters=_segmentation_parameters(args))
+    with output_folder(args.output, inputs=args.files, overwrite=args.overwrite, what="the study") as staged:
+        yaml_path, views = study_from_dicom(args.files, staged.path, segment=args.segment, frame=args.frame,
+                                            all_frames=args.all_frames, copy=not args.reference,
+                                            parameters=_segmentation_parameters(args))
+        yaml_path = staged.final(yaml_path)
     for view in views:
         pixels = f", {view.mask_pixels} vessel pixels" if view.mask_pixels is not None else ""
         print(f"{view.name}: {view.source_file} frame {view.frame} ({view.selection}), {view.carm.clinical_name()}{pixels}")
@@ -826,7 +916,7 @@ class _WarningPrinter:
         self.python = warnings.showwarning
 
     def __call__(self, message, category, filename, lineno, file=None, line=None) -> None:
-        if not issubclass(category, (DicomGeometryWarning, TreeWarning, AgreementWarning)):
+        if not issubclass(category, (DicomGeometryWarning, TreeWarning, AgreementWarning, InputWarning)):
             self.python(message, category, filename, lineno, file, line)
         elif str(message) not in self.seen:
             self.seen.add(str(message))
@@ -862,6 +952,8 @@ def _add_experiment_parsers(sub) -> None:
     p.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR", help="run directory, or a folder of them")
     p.add_argument("-o", "--output", type=Path, default=Path("angiohull-report"), metavar="OUT_DIR",
                    help="output folder (default ./angiohull-report)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a non-empty OUT_DIR (a folder holding only an earlier report is replaced without it)")
 
 
 def _cmd_experiment(args) -> int:
@@ -896,10 +988,17 @@ def _cmd_experiment(args) -> int:
     return 0
 
 
+REPORT_OUTPUTS = ("report.md", "report.json", "figures")
+"""What `angiohull report` writes: a folder holding only these is an earlier report, which a new one replaces."""
+
+
 def _cmd_report(args) -> int:
     from .experiments.report import build_report
+    from .workflow import folder_holds_only, output_folder
 
-    path = build_report(args.runs, args.output)
+    with output_folder(args.output, inputs=args.runs, overwrite=args.overwrite, what="the report",
+                       replaceable=lambda folder: folder_holds_only(folder, REPORT_OUTPUTS)) as staged:
+        path = staged.final(build_report(args.runs, staged.path))
     print(f"wrote {path} (and report.json, figures/ beside it)")
     return 0
 
@@ -925,10 +1024,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             warnings.simplefilter("always", DicomGeometryWarning)  # the printer shows each message once
             warnings.simplefilter("always", TreeWarning)
             warnings.simplefilter("always", AgreementWarning)
+            warnings.simplefilter("always", InputWarning)
             return _COMMANDS[args.command](args)
     except AngiohullError as error:
         print(f"angiohull {args.command}: error: {error}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # output folders are written all or nothing: nothing half-written is left
+        print(f"angiohull {args.command}: interrupted; nothing of this run was written", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

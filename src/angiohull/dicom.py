@@ -1,7 +1,7 @@
 """X-ray angiography (XA) DICOM files: C-arm geometry per frame, pixel data, frame selection.
 
 The geometry of a view is read from the header into a :class:`~angiohull.geometry.CArmGeometry`
-(DESIGN.md, "Geometry conventions"), whose :meth:`~angiohull.geometry.CArmGeometry.projection` is
+(docs/conventions.md, "Geometry conventions"), whose :meth:`~angiohull.geometry.CArmGeometry.projection` is
 the view's 3x4 matrix:
 
 ===========================  ===========================================================================
@@ -57,7 +57,7 @@ from pydicom.dataset import Dataset
 from pydicom.errors import InvalidDicomError
 from pydicom.multival import MultiValue
 
-from .errors import DicomError, DicomGeometryWarning, GeometryError
+from .errors import DicomError, DicomGeometryWarning, GeometryError, InputWarning
 from .geometry import CArmGeometry, format_clinical_angles
 
 __all__ = [
@@ -116,7 +116,16 @@ _TAGS = {
     "FieldOfViewSequence": "(0018,9432)",
     "FrameContentSequence": "(0020,9111)",
     "SamplesPerPixel": "(0028,0002)",
+    "PatientPosition": "(0018,5100)",
+    "FieldOfViewRotation": "(0018,7032)",
+    "FieldOfViewHorizontalFlip": "(0018,7034)",
+    "TransferSyntaxUID": "(0002,0010)",
+    "MediaStorageSOPClassUID": "(0002,0002)",
+    "PixelData": "(7FE0,0010)",
 }
+
+_MODALITIES = ("XA", "RF")
+"""Modalities of X-ray angiograms (RF: fluoroscopy acquired on the same C-arms)."""
 
 
 def _tag(keyword: str) -> str:
@@ -302,17 +311,79 @@ class XAView:
 
 
 # -- reading the header ------------------------------------------------------------------------
-def _read_dataset(path: Path, *, pixels: bool) -> Dataset:
+def _tag_name(tag: Any) -> str:
+    """``Keyword (gggg,eeee)`` of a tag (private or unknown tags: just the number)."""
+    from pydicom.datadict import keyword_for_tag
+    from pydicom.tag import Tag
+
+    tag = Tag(tag)
+    number = f"({tag.group:04X},{tag.element:04X})"
+    keyword = keyword_for_tag(tag)
+    return f"{keyword} {number}" if keyword else number
+
+
+def _parse_all(path: Path, ds: Dataset, where: str = "", depth: int = 0) -> None:
+    """Decode every element now (pydicom decodes lazily, on first access), so that a damaged one
+    (an unknown value representation, a value that does not fit its VR) is a DicomError naming
+    the file and the tag, not an exception in the middle of the geometry."""
+    for tag in list(ds.keys()):
+        try:
+            element = ds[tag]
+            value = element.value
+        except Exception as exc:  # pydicom raises NotImplementedError, ValueError, KeyError, ... here
+            detail = " ".join(str(exc).split())
+            raise DicomError(f"{path}: {_tag_name(tag)}{where} is damaged and cannot be read ({type(exc).__name__}: "
+                             f"{detail}); the file's header is corrupt") from None
+        if element.VR == "SQ" and value is not None and depth < 8:
+            for index, item in enumerate(value):
+                _parse_all(path, item, f"{where} in {_tag_name(tag)}[{index}]", depth + 1)
+
+
+_MAX_PYDICOM_WARNINGS = 3
+
+
+def _condensed(text: str, limit: int = 200) -> str:
+    """One short printable line of a message (pydicom quotes raw bytes of damaged values)."""
+    line = " ".join("".join(c if c.isprintable() else " " for c in text).split())
+    return line if len(line) <= limit else line[:limit - 1] + "…"
+
+
+def _pydicom_warnings(path: Path, caught: Sequence[warnings.WarningMessage], tag: str) -> None:
+    """Re-issue what pydicom warned about while reading ``path`` as one-line InputWarnings naming the tag
+    (at most a few, shortened: a damaged header can make pydicom warn at length)."""
+    seen: list[str] = []
+    for item in caught:
+        if issubclass(item.category, (DicomGeometryWarning, InputWarning)):
+            warnings.warn(item.message, item.category, stacklevel=3)
+            continue
+        detail = _condensed(str(item.message))
+        if detail not in seen:
+            seen.append(detail)
+    for detail in seen[:_MAX_PYDICOM_WARNINGS]:
+        warnings.warn(f"{path}: {tag}: {detail} (pydicom, while reading the file)", InputWarning, stacklevel=3)
+    if len(seen) > _MAX_PYDICOM_WARNINGS:
+        warnings.warn(f"{path}: {tag}: and {len(seen) - _MAX_PYDICOM_WARNINGS} more warning(s) of pydicom",
+                      InputWarning, stacklevel=3)
+
+
+def _read_dataset(path: Path, *, pixels: bool, caught: Optional[list] = None) -> Dataset:
+    """Read a DICOM file (every element decoded); what pydicom warned about is appended to ``caught``."""
     if not path.exists():
         raise DicomError(f"{path}: file not found; expected an X-ray angiography DICOM file")
     if not path.is_file():
         raise DicomError(f"{path}: is not a regular file; expected an X-ray angiography DICOM file")
-    try:
-        return pydicom.dcmread(path, stop_before_pixels=not pixels)
-    except InvalidDicomError as exc:
-        raise DicomError(f"{path}: is not a DICOM file ({exc}); expected a DICOM Part 10 file of an X-ray angiogram") from None
-    except (OSError, EOFError, ValueError, KeyError, TypeError) as exc:
-        raise DicomError(f"{path}: cannot read as DICOM ({type(exc).__name__}: {exc}); the file may be truncated or damaged") from None
+    with warnings.catch_warnings(record=True) as recorded:
+        warnings.simplefilter("always")
+        try:
+            ds = pydicom.dcmread(path, stop_before_pixels=not pixels)
+            _parse_all(path, ds)
+        except InvalidDicomError as exc:
+            raise DicomError(f"{path}: is not a DICOM file ({exc}); expected a DICOM Part 10 file of an X-ray angiogram") from None
+        except (OSError, EOFError, ValueError, KeyError, TypeError, NotImplementedError) as exc:
+            raise DicomError(f"{path}: cannot read as DICOM ({type(exc).__name__}: {exc}); the file may be truncated or damaged") from None
+    if caught is not None:
+        caught.extend(recorded)
+    return ds
 
 
 def _present(container: Optional[Dataset], keyword: str) -> bool:
@@ -395,9 +466,21 @@ def _modality(path: Path, ds: Dataset) -> tuple[str, str]:
     modality = str(ds.get("Modality", "") or "")
     sop = str(ds.get("SOPClassUID", "") or "")
     if sop in _XA_CLASSES:
+        if modality and modality not in _MODALITIES:
+            raise DicomError(
+                f"{path}: {_tag('Modality')} is {modality!r} but {_tag('SOPClassUID')} is {_XA_CLASSES[sop]} Image "
+                f"Storage; an X-ray angiogram has Modality 'XA' (or 'RF'): the header contradicts itself, so its "
+                f"geometry cannot be trusted")
         return modality or "XA", _XA_CLASSES[sop]
     if modality == "XA":
         return modality, "XA"
+    meta = getattr(ds, "file_meta", None)
+    stored = str(meta.get("MediaStorageSOPClassUID", "") or "") if meta is not None else ""
+    if not modality and not sop and stored in _XA_CLASSES:
+        raise DicomError(
+            f"{path}: the data set cannot be read as {_transfer_syntax(ds)} ({_tag('TransferSyntaxUID')}): Modality and "
+            f"SOPClassUID come out absent although {_tag('MediaStorageSOPClassUID')} says {_XA_CLASSES[stored]}; the "
+            f"transfer syntax is probably mislabelled (or the file damaged)")
     try:
         sop_name = pydicom.uid.UID(sop).name if sop else "absent"
     except Exception:  # pragma: no cover - a malformed UID string
@@ -407,6 +490,53 @@ def _modality(path: Path, ds: Dataset) -> tuple[str, str]:
         f"{_tag('SOPClassUID')} is {sop_name!r}; expected Modality 'XA' (X-Ray Angiographic Image Storage "
         "or Enhanced XA Image Storage), whose header holds the C-arm geometry"
     )
+
+
+def _check_orientation(path: Path, ds: Dataset, groups: "_Groups", n_frames: int) -> None:
+    """The stored image must face the detector as the geometry assumes, and the patient lie head first supine.
+
+    FieldOfViewRotation (0018,7032) != 0 or FieldOfViewHorizontalFlip (0018,7034) = YES say the stored
+    pixels were rotated or mirrored after acquisition (top level, or Enhanced XA's FieldOfViewSequence).
+    Whether a file's angles refer to the detector or to the displayed image is not said by the
+    standard in a way angiohull can check, so such a file is refused rather than reconstructed
+    mirrored. PatientPosition (0018,5100) other than HFS is a warning: the angles are patient-relative,
+    but the image's up and left on the detector then differ from the head-first-supine convention.
+    """
+    sources = [(ds, "")]
+    if groups.enhanced:
+        item = _item(groups.shared, "FieldOfViewSequence")
+        if item is not None:
+            sources.append((item, f" in SharedFunctionalGroupsSequence.{_tag('FieldOfViewSequence')}"))
+        for frame in range(min(n_frames, len(groups.per_frame))):
+            item = _item(groups.per_frame[frame], "FieldOfViewSequence")
+            if item is not None:
+                sources.append((item, f" in PerFrameFunctionalGroupsSequence[{frame}].{_tag('FieldOfViewSequence')}"))
+    for container, where in sources:
+        if _present(container, "FieldOfViewRotation"):
+            rotation = _single(path, container, "FieldOfViewRotation", where)
+            if rotation % 360 != 0:
+                raise DicomError(
+                    f"{path}: {_tag('FieldOfViewRotation')}{where} is {rotation:g} degrees: the stored image is rotated "
+                    f"against the detector, and angiohull does not undo it (it cannot tell whether the C-arm angles refer "
+                    f"to the detector or to the rotated image); export the run without rotation, or give the view as "
+                    f"carm: with a mask in the detector's orientation")
+        if _present(container, "FieldOfViewHorizontalFlip"):
+            flip = str(container.FieldOfViewHorizontalFlip).strip().upper()
+            if flip == "YES":
+                raise DicomError(
+                    f"{path}: {_tag('FieldOfViewHorizontalFlip')}{where} is YES: the stored image is mirrored against the "
+                    f"detector, and angiohull does not undo it (a mirrored view reconstructs a mirrored or no vessel); "
+                    f"export the run without the flip, or give the view as carm: with a mask in the detector's orientation")
+            if flip != "NO":
+                raise DicomError(f"{path}: {_tag('FieldOfViewHorizontalFlip')}{where} is {flip!r}; expected YES or NO")
+    if _present(ds, "PatientPosition"):
+        position = str(ds.PatientPosition).strip().upper()
+        if position != "HFS":
+            warnings.warn(
+                f"{path}: {_tag('PatientPosition')} is {position!r}, not HFS (head first supine): angiohull reads the "
+                f"C-arm geometry as for a patient lying head first supine, as in cardiac angiography; for {position} "
+                f"the image's up and left may differ, and the reconstruction be mirrored or upside down: check it",
+                InputWarning, stacklevel=3)
 
 
 def _shape(path: Path, ds: Dataset) -> tuple[int, int, int]:
@@ -594,20 +724,32 @@ def read_xa_header(path: PathLike) -> XAHeader:
     DicomGeometryWarning
         When the pixel spacing is derived from FieldOfViewDimensions or IntensifierSize (once per
         file and source).
+    InputWarning
+        When PatientPosition (0018,5100) is not HFS, or pydicom had to guess or repair something
+        while reading (e.g. a transfer syntax that says implicit VR for an explicit-VR data set);
+        the message names the file and the tag.
 
     Raises
     ------
     DicomError
-        Not a DICOM file, not an XA image, a missing angle, distance, matrix size or spacing (with
-        no fallback), values that are not numbers, implausible values (SID outside 200-3000 mm,
-        SOD >= SID, spacing outside 0.01-5 mm, angles outside [-180, 180] / [-90, 90]), or
-        increment vectors of the wrong length. The message names the file and the tag.
+        Not a DICOM file, not an XA image, a Modality other than XA/RF in an XA file, a header
+        that cannot be read as its transfer syntax (mislabelled), an element that cannot be
+        decoded (e.g. a damaged value representation), a missing angle, distance, matrix size or
+        spacing (with no fallback), values that are not numbers, implausible values (SID outside
+        200-3000 mm, SOD >= SID, spacing outside 0.01-5 mm, angles outside [-180, 180] /
+        [-90, 90]), increment vectors of the wrong length, or a stored image rotated or mirrored
+        against the detector (FieldOfViewRotation (0018,7032) != 0, FieldOfViewHorizontalFlip
+        (0018,7034) YES: refused, not undone). The message names the file and the tag.
     """
     path = Path(path)
-    ds = _read_dataset(path, pixels=False)
+    caught: list = []
+    ds = _read_dataset(path, pixels=False, caught=caught)
     modality, sop_class = _modality(path, ds)
     rows, cols, n_frames = _shape(path, ds)
+    # what pydicom had to repair or guess, once the header has proved to be an XA header
+    _pydicom_warnings(path, caught, f"the data set, read as its {_tag('TransferSyntaxUID')} {_transfer_syntax(ds)} says")
     groups = _Groups(ds)
+    _check_orientation(path, ds, groups, n_frames)
     if groups.enhanced and groups.per_frame and len(groups.per_frame) != n_frames:
         raise DicomError(f"{path}: PerFrameFunctionalGroupsSequence (5200,9230) has {len(groups.per_frame)} items but "
                          f"{_tag('NumberOfFrames')} is {n_frames}")
@@ -686,15 +828,18 @@ def _decode(path: Path, ds: Dataset, header: XAHeader, index: Optional[int]) -> 
                 f"{path}: cannot decode the pixel data: transfer syntax {uid.name} ({uid}) needs a decoder plugin "
                 f"that is not installed; install one: {_install_hint(uid.name)} (pydicom reports: {'; '.join(missing)})"
             )
-    try:
-        array = ds.pixel_array if index is None else pydicom.pixels.pixel_array(ds, index=index)
-    except Exception as exc:  # decoders raise many types; all mean the same to the user
-        name = uid.name if uid is not None else "unknown"
-        detail = " ".join(str(exc).split())  # one line
-        raise DicomError(
-            f"{path}: cannot decode the pixel data (transfer syntax {name}): {type(exc).__name__}: {detail}; the file may be "
-            "damaged or truncated"
-        ) from None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            array = ds.pixel_array if index is None else pydicom.pixels.pixel_array(ds, index=index)
+        except Exception as exc:  # decoders raise many types; all mean the same to the user
+            name = uid.name if uid is not None else "unknown"
+            detail = " ".join(str(exc).split())  # one line
+            raise DicomError(
+                f"{path}: cannot decode the pixel data (transfer syntax {name}): {type(exc).__name__}: {detail}; the file may "
+                "be damaged or truncated"
+            ) from None
+    _pydicom_warnings(path, caught, f"{_tag('PixelData')} ({uid.name if uid is not None else 'unknown transfer syntax'})")
     rows, cols = header.image_shape
     expected = (rows, cols) if index is not None or header.n_frames == 1 else (header.n_frames, rows, cols)
     if array.shape != expected:

@@ -20,6 +20,7 @@ __all__ = [
     "DicomGeometryWarning",
     "TreeWarning",
     "AgreementWarning",
+    "InputWarning",
     "QcaError",
     "ViewerError",
 ]
@@ -114,3 +115,12 @@ class AgreementWarning(UserWarning):
     """The views disagree: the visual hull of all views covers too little of some view's mask (a
     geometry off by pixels, or masks that do not show the same vessels), with or without
     calibration. The message names the views and their coverage and says what to try."""
+
+
+class InputWarning(UserWarning):
+    """An input that angiohull can use but that is probably not what was meant: a mask that is
+    mostly vessel or a few pixels small, a DICOM header that contradicts itself, pixel data that
+    needed repair. The message names the file and the field or tag, and what looks wrong.
+
+    The command line prints it as one ``angiohull: warning: ...`` line.
+    """

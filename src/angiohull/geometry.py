@@ -1,6 +1,6 @@
 """Acquisition geometry: projection matrices, C-arm poses and clinical angle strings.
 
-Conventions (see DESIGN.md, "Geometry conventions"):
+Conventions (see docs/conventions.md, "Geometry conventions"):
 
 * world frame: DICOM patient coordinates (LPS), millimetres, origin at the C-arm isocentre;
 * a view is a 3x4 matrix ``P`` mapping ``[X, Y, Z, 1]`` to ``[u*w, v*w, w]`` with ``u`` the column
@@ -234,7 +234,7 @@ class CArmGeometry:
                             ("image_shape", _v.image_shape(self.image_shape, error=err))):
             object.__setattr__(self, name, value)
 
-    # -- the frame of the C-arm, DESIGN.md -----------------------------------------------------
+    # -- the frame of the C-arm, docs/conventions.md -----------------------------------------------------
     def detector_direction(self) -> np.ndarray:
         """Unit vector from the isocentre towards the detector centre, ``d``."""
         a, b = math.radians(self.primary_deg), math.radians(self.secondary_deg)
@@ -341,6 +341,10 @@ def parse_clinical_angles(text: str) -> tuple[float, float]:
             degrees = float(value)
             if degrees < 0:
                 raise ValueError(f"cannot read clinical angles from {text!r}: give {word} a non-negative angle; the word gives the sign")
+            limit = 180.0 if word in ("LAO", "RAO") else 90.0
+            if degrees > limit:
+                raise ValueError(f"cannot read clinical angles from {text!r}: {word} {value} is beyond {limit:g} degrees "
+                                 f"({'LAO/RAO within 0-180' if limit == 180.0 else 'CRA/CAU within 0-90'})")
             if word in ("LAO", "RAO"):
                 if primary is not None:
                     raise ValueError(f"cannot read clinical angles from {text!r}: two primary angles (LAO/RAO)")
@@ -370,7 +374,7 @@ def format_clinical_angles(primary_deg: float, secondary_deg: float) -> str:
 def cube_half_edge_mm(projections: Iterable[Projection]) -> float:
     """Half-edge R (mm) of the cube of interest ``[-R, R]^3`` that covers every view.
 
-    The largest :meth:`Projection.field_half_edge_mm` over the views (DESIGN.md, method step 2).
+    The largest :meth:`Projection.field_half_edge_mm` over the views (docs/conventions.md, method step 2).
     """
     values = [p.field_half_edge_mm() for p in projections]
     if not values:

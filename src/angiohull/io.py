@@ -4,7 +4,7 @@ Plain arrays in and out. Every problem with a file raises :class:`~angiohull.err
 whose message starts with the file's path and says what was expected.
 
 Units: points are ``(N, 3)`` float64 arrays of ``x, y, z`` in millimetres, in the DICOM patient
-frame (LPS) with the origin at the C-arm isocentre (DESIGN.md, "Geometry conventions").
+frame (LPS) with the origin at the C-arm isocentre (docs/conventions.md, "Geometry conventions").
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The study folder (DESIGN.md, "Study folder"): ``study.yaml``, masks and optional ground truth.
+"""The study folder (docs/conventions.md, "Study folder"): ``study.yaml``, masks and optional ground truth.
 
 A study is a folder with a ``study.yaml``::
 
@@ -16,6 +16,7 @@ A study is a folder with a ``study.yaml``::
         segmentation: {high_threshold: 0.25}   # optional overrides of SegmentationParameters
     ground_truth: gt.npy              # optional: (N, 3) points in mm (.npy or .ply)
     ground_truth_tree: gt_centerlines.npz   # optional: the true vessel tree (.npz, .npy or .json)
+    allow_outside_paths: false        # optional: true to read files outside the folder
 
 Each view has exactly one geometry source (``carm``, ``projection_matrix`` or ``dicom``) and
 exactly one of ``mask`` (a binary vessel mask) and ``image`` (segmented with
@@ -29,6 +30,7 @@ from __future__ import annotations
 import math
 import os
 import shutil
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Iterable, Optional, Sequence, Union
@@ -39,8 +41,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from . import _validation as _v
 from . import dicom, exports, io
-from .errors import DicomError, GeometryError, SegmentationError, StudyError
+from .errors import DicomError, GeometryError, InputWarning, SegmentationError, StudyError
 from ._models import find_model, short_repr
+from ._yaml import read_yaml_file
 from .geometry import CArmGeometry, Projection
 from .segmentation import SegmentationParameters, segment_vessels
 from .tree import VesselTree
@@ -193,7 +196,7 @@ class Study:
     views : tuple of View
         At least one view, with unique names.
     ground_truth_mm : ndarray of float64, shape (N, 3), or None
-        Ground-truth points in mm (world frame of DESIGN.md), stored read-only.
+        Ground-truth points in mm (world frame of docs/conventions.md), stored read-only.
     ground_truth_path : Path or None
         The file the ground truth was read from.
     ground_truth_tree : VesselTree or None
@@ -329,6 +332,7 @@ class _StudyFile(_Strict):
     views: Annotated[list[_ViewEntry], Field(min_length=1)]
     ground_truth: Optional[_Text] = None
     ground_truth_tree: Optional[_Text] = None
+    allow_outside_paths: bool = False  # read files outside the study folder (off: a study is a folder)
 
     @field_validator("angiohull")
     @classmethod
@@ -430,17 +434,7 @@ def _study_file(folder: Union[str, Path]) -> Path:
 
 
 def _parse_yaml(yaml_path: Path) -> dict[str, Any]:
-    try:
-        data = yaml.safe_load(yaml_path.read_bytes())
-    except OSError as exc:
-        raise StudyError(f"{yaml_path}: cannot read the study file ({exc})") from None
-    except yaml.MarkedYAMLError as exc:
-        mark = exc.problem_mark
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        context = f" ({exc.context})" if exc.context else ""
-        raise StudyError(f"{yaml_path}: invalid YAML{where}: {exc.problem}{context}") from None
-    except yaml.YAMLError as exc:
-        raise StudyError(f"{yaml_path}: invalid YAML: {exc}") from None
+    data = read_yaml_file(yaml_path, error=StudyError, what="the study file")
     if not isinstance(data, dict):
         got = "an empty file" if data is None else f"a {type(data).__name__}"
         raise StudyError(
@@ -581,12 +575,52 @@ def _load_view(index: int, entry: _ViewEntry, root: Path) -> View:
                 image_path=image_path)
 
 
+_PATH_FIELDS = ("mask", "image", "dicom")
+
+
+def _outside(relative: str, root: Path, field: str) -> Optional[tuple[str, str]]:
+    """``(field, message)`` when ``root / relative`` lies outside the study folder (``..``, an
+    absolute path, or a symbolic link that leads out), else None."""
+    folder = Path(os.path.realpath(root))
+    target = Path(os.path.realpath(root / relative))
+    if target == folder or folder in target.parents:
+        return None
+    how = "is an absolute path" if Path(relative).is_absolute() else "leads out of the study folder"
+    return field, (f"{relative!r} {how} ({target}); a study's files stay inside its folder ({folder}): move the "
+                   f"file in, or add 'allow_outside_paths: true' to study.yaml to read files elsewhere")
+
+
+def _outside_paths(entries: "_StudyFile", root: Path) -> list[tuple[str, str]]:
+    """Every path of the study file that lies outside the study folder (none with allow_outside_paths)."""
+    if entries.allow_outside_paths:
+        return []
+    found = []
+    for index, view in enumerate(entries.views):
+        for key in _PATH_FIELDS:
+            relative = getattr(view, key)
+            if relative is not None:
+                problem = _outside(relative, root, f"views[{index}].{key}")
+                if problem is not None:
+                    found.append(problem)
+    for key in ("ground_truth", "ground_truth_tree"):
+        relative = getattr(entries, key)
+        if relative is not None:
+            problem = _outside(relative, root, key)
+            if problem is not None:
+                found.append(problem)
+    return found
+
+
 def _load_ground_truth(relative: str, root: Path) -> tuple[np.ndarray, Path]:
     path = root / relative
     try:
-        return io.read_points(path), path
+        points = io.read_points(path)
     except StudyError as exc:
         raise _Problem("ground_truth", str(exc)) from None
+    if len(points) == 0:
+        raise _Problem("ground_truth", f"{path}: holds no points; the scores against the truth are undefined without "
+                                       f"any: give the true points, or remove ground_truth: from study.yaml")
+    return points, path
 
 
 def _load_ground_truth_tree(relative: str, root: Path) -> tuple[VesselTree, Path]:
@@ -621,16 +655,24 @@ def load_study(folder: Union[str, Path]) -> Study:
         than 1, zero or two geometry sources in a view, zero or two of mask/image, duplicate view
         names, missing, unreadable or empty masks, an image whose segmentation finds no vessel or
         bad segmentation overrides, an unusable DICOM file (named tag), invalid C-arm parameters
-        or matrices, and an unreadable ground truth or true tree.
+        or matrices, and an unreadable or empty ground truth or true tree; a path (``mask:``, ``image:``,
+        ``dicom:``, ``ground_truth:``, ``ground_truth_tree:``) that leads outside the study folder
+        (``../x``, an absolute path, a symbolic link out), unless the file sets
+        ``allow_outside_paths: true``.
 
     Warns
     -----
     DicomGeometryWarning
         When a DICOM file's pixel spacing is derived from a fallback tag.
+    InputWarning
+        For a mask (read or segmented) with fewer than :data:`MIN_MASK_SIDE_PX` rows or columns,
+        or more than :data:`MAX_VESSEL_SHARE` of its pixels vessel (probably inverted), and for
+        DICOM headers that are legal but suspicious (see :func:`angiohull.dicom.read_xa_header`).
     """
     yaml_path = _study_file(folder)
     entries = _validate(yaml_path, _parse_yaml(yaml_path))
     root = yaml_path.parent
+    _raise_problems(yaml_path, _outside_paths(entries, root))  # before any of them is read
     views: list[View] = []
     problems: list[tuple[str, str]] = []
     ground_truth, ground_truth_path = None, None
@@ -651,8 +693,32 @@ def load_study(folder: Union[str, Path]) -> Study:
         except _Problem as problem:
             problems.append((problem.field, problem.message))
     _raise_problems(yaml_path, problems)
+    for index, (entry, view) in enumerate(zip(entries.views, views)):
+        _warn_if_suspicious(yaml_path, f"views[{index}].{'mask' if entry.mask is not None else 'image'}", view)
     return Study(root=root, views=tuple(views), ground_truth_mm=ground_truth, ground_truth_path=ground_truth_path,
                  ground_truth_tree=tree, ground_truth_tree_path=tree_path)
+
+
+#: A mask with fewer rows or columns than this cannot show a vessel with background beside it.
+MIN_MASK_SIDE_PX = 4
+#: A vessel mask covering more than this share of its image is probably inverted (vessels cover a few percent).
+MAX_VESSEL_SHARE = 0.5
+
+
+def _warn_if_suspicious(yaml_path: Path, field: str, view: View) -> None:
+    """An :class:`~angiohull.errors.InputWarning` for a mask that is legal but probably not meant."""
+    rows, cols = view.mask.shape
+    source = view.mask_path if view.mask_path is not None else view.image_path
+    where = f"{yaml_path}: {field}: view {view.name!r}" + (f" ({source})" if source is not None else "")
+    if min(rows, cols) < MIN_MASK_SIDE_PX:
+        warnings.warn(f"{where}: the mask is only {rows} x {cols} pixels, too small to show a vessel and the background "
+                      f"beside it; is it the right file?", InputWarning, stacklevel=3)
+    share = float(np.count_nonzero(view.mask)) / view.mask.size
+    if share > MAX_VESSEL_SHARE:
+        what = "every pixel is vessel" if share == 1.0 else f"{100.0 * share:.0f} % of the pixels are vessel"
+        warnings.warn(f"{where}: {what}; vessels cover a few percent of an angiogram, so the mask is probably inverted "
+                      f"(vessel must be nonzero) or not a vessel mask, and the view removes almost nothing from the hull",
+                      InputWarning, stacklevel=3)
 
 
 # -- saving ---------------------------------------------------------------------------------
@@ -760,6 +826,8 @@ def save_study(
         document["ground_truth"] = _GROUND_TRUTH_FILE
     if ground_truth_tree_file is not None:
         document["ground_truth_tree"] = str(ground_truth_tree_file)
+    if any("dicom" in entry and _outside(entry["dicom"], folder, "dicom") is not None for entry in document["views"]):
+        document["allow_outside_paths"] = True  # a dicom: view refers to its file where it is
     return _write_yaml(folder / STUDY_FILE, document)
 
 
@@ -772,7 +840,7 @@ def _save_points(path: Path, points: np.ndarray) -> None:
 
 
 def _write_yaml(yaml_path: Path, document: dict[str, Any]) -> Path:
-    text = "# angiohull study (DESIGN.md, 'Study folder'); paths are relative to this folder\n"
+    text = "# angiohull study (docs/conventions.md, 'Study folder'); paths are relative to this folder\n"
     text += yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=4096)
     try:
         yaml_path.write_text(text, encoding="utf-8")
@@ -924,4 +992,6 @@ def study_from_dicom(
             entry["frame"] = int(index)
             document["views"].append(entry)
             summaries.append(DicomViewSummary(name, path, int(index), reason, header.frames[index].carm(), pixels))
+    if not copy and any(_outside(entry["dicom"], folder, "dicom") is not None for entry in document["views"]):
+        document["allow_outside_paths"] = True  # --reference: the runs stay where they are, on purpose
     return _write_yaml(folder / STUDY_FILE, document), summaries

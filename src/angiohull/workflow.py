@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import platform
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -24,7 +26,8 @@ from .rasterise import boundary_cells, cell_silhouette
 from .reconstruction import DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ReconstructionResult, reconstruct
 from .reconstruction.calibration import (AGREEMENT_MIN_COVERAGE, Calibration, calibrate_shifts, shift_projection,
                                          view_coverage)
-from .errors import AngiohullError, GeometryError, OutputError, QcaError, StudyError, ViewerError
+from . import _validation as _v
+from .errors import AngiohullError, GeometryError, OutputError, QcaError, ReconstructionError, StudyError, ViewerError
 from .geometry import Projection
 from .study import Study, View
 from .tree import VesselTree
@@ -36,7 +39,8 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_agreement", "agreement_warning",
            "ambiguity_warning", "view_silhouettes", "evaluation_scores", "tree_evaluation_scores", "tree_summary",
            "build_report", "write_outputs", "ExtraOutput", "json_safe", "load_result_for_qca", "report_projections",
-           "write_qca_outputs", "ResultFolder", "load_result_folder"]
+           "write_qca_outputs", "ResultFolder", "load_result_folder", "output_folder", "check_output_folder",
+           "StagedFolder", "folder_holds_only", "study_inputs", "output_file", "check_output_file"]
 
 
 @dataclass(frozen=True)
@@ -55,8 +59,18 @@ class ReconstructOptions:
     tree: bool = True  # build the vessel tree (and, when writing outputs, its mesh, label volume and exports)
 
     def __post_init__(self) -> None:
+        from .reconstruction import MAX_DENSE_RESOLUTION, check_threshold_px
+
         if self.calibrate_scale and not self.calibrate:  # scales are estimated with the shifts
             object.__setattr__(self, "calibrate", True)
+        object.__setattr__(self, "threshold_px", check_threshold_px(self.threshold_px))
+        if self.resolution is not None:
+            k = _v.positive_int(self.resolution, "resolution", error=ReconstructionError)
+            if not 2 <= k <= MAX_DENSE_RESOLUTION:
+                raise ReconstructionError(f"resolution (lattice points per axis) must be within [2, "
+                                          f"{MAX_DENSE_RESOLUTION}], got {k}: K**3 points are carved")
+        if self.min_views is not None:
+            _v.positive_int(self.min_views, "min_views", error=ReconstructionError)
 
 
 def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOptions()) -> ReconstructionResult:
@@ -362,29 +376,272 @@ def _write_all_or_nothing(out: Path, write: Callable[[Path], dict[str, str]]) ->
     """Run ``write(staging)``, which writes files into a hidden folder inside ``out`` and returns
     ``{key: file name}``, then move every file into ``out``. On any failure no file of this call
     is left (an ``out`` created by this call is removed again) and an OSError becomes an
-    :class:`OutputError` that names the folder and the reason."""
-    import shutil
-    import tempfile
+    :class:`OutputError` that names the folder and the reason.
 
-    created = not out.exists()
+    This merges files into a folder that may hold others (the library's :func:`write_outputs`);
+    the command line writes whole result folders with :func:`output_folder`, which stages the
+    folder beside its target and so never leaves files of an earlier run behind.
+    """
+    import shutil
+
+    created = [] if out.exists() else _missing_folders(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=".angiohull-partial-", dir=out))
+        staging = _new_folder(out, ".angiohull-partial-")
     except OSError as exc:
-        raise OutputError(f"cannot write the outputs into {out}: {exc.strerror or exc}") from None
+        _remove_created(created)
+        raise _output_error(exc, out) from None
     try:
         names = write(staging)
         for name in names.values():
             (staging / name).replace(out / name)
-    except (OSError, AngiohullError) as exc:
+    except BaseException as exc:
         shutil.rmtree(staging, ignore_errors=True)
-        if created:
-            shutil.rmtree(out, ignore_errors=True)
+        _remove_created(created)
         if isinstance(exc, OSError):
-            raise OutputError(f"cannot write the outputs into {out}: {exc.strerror or exc}") from None
+            raise _output_error(exc, out) from None
         raise
     shutil.rmtree(staging, ignore_errors=True)
     return {key: out / name for key, name in names.items()}
+
+
+# -- whole output folders: checked, staged beside the target, swapped into place ---------------------
+def _output_error(exc: OSError, target: Path, what: str = "the outputs") -> OutputError:
+    """An OSError while writing ``what`` into ``target`` as one line naming the folder and the reason."""
+    import errno
+
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    hint = ""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        hint = "; nothing was written: free some space and run the command again"
+    elif exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        hint = "; nothing was written: choose a folder you may write to"
+    return OutputError(f"cannot write {what} into {target}: {reason}{hint}")
+
+
+def _missing_folders(path: Path) -> list[Path]:
+    """The folders a ``mkdir(parents=True)`` of ``path`` would create, outermost first."""
+    missing = []
+    for folder in [path, *path.parents]:
+        if os.path.lexists(folder):
+            break
+        missing.append(folder)
+    return missing[::-1]
+
+
+def _remove_created(folders: Sequence[Path]) -> None:
+    """Remove folders this call created (outermost first in ``folders``), if they are still empty."""
+    for folder in reversed(folders):
+        try:
+            folder.rmdir()
+        except OSError:
+            pass
+
+
+def _new_folder(parent: Path, prefix: str) -> Path:
+    """A new folder ``parent/prefix<random>`` with the usual permissions (mkdtemp's are 0700)."""
+    import secrets
+
+    while True:
+        folder = parent / f"{prefix}{secrets.token_hex(4)}"
+        try:
+            folder.mkdir()
+            return folder
+        except FileExistsError:  # pragma: no cover - 2**32 names
+            continue
+
+
+def _listing(folder: Path, limit: int = 3) -> str:
+    names = sorted(p.name + ("/" if p.is_dir() else "") for p in folder.iterdir())
+    shown = ", ".join(names[:limit])
+    return shown + (f" and {len(names) - limit} more" if len(names) > limit else "")
+
+
+def folder_holds_only(folder: Path, names: Sequence[str]) -> bool:
+    """True when every entry of ``folder`` matches one of ``names`` (file names or glob patterns):
+    what an earlier run of the same command leaves, so that the command may replace it."""
+    from fnmatch import fnmatchcase
+
+    try:
+        return all(any(fnmatchcase(p.name, pattern) for pattern in names) for p in folder.iterdir())
+    except OSError:
+        return False
+
+
+def study_inputs(study: Study) -> list[Path]:
+    """The files a loaded study was read from: its folder's ``study.yaml``, the masks, images,
+    DICOM files and ground truths (what an output folder must never hold)."""
+    from .study import STUDY_FILE
+
+    files = [] if study.root is None else [Path(study.root) / STUDY_FILE]
+    for view in study.views:
+        files += [p for p in (view.mask_path, view.image_path, view.dicom_path) if p is not None]
+    files += [p for p in (study.ground_truth_path, study.ground_truth_tree_path) if p is not None]
+    return files
+
+
+@dataclass(frozen=True)
+class StagedFolder:
+    """The folder a command writes its outputs into (``path``, hidden, beside ``target``) and the
+    folder it becomes once everything is written (``target``)."""
+
+    path: Path
+    target: Path
+
+    def final(self, path: Path) -> Path:
+        """Where ``path`` (inside :attr:`path`) will be once the outputs are in place."""
+        return self.target / Path(path).relative_to(self.path)
+
+
+def check_output_folder(target: str | Path, *, inputs: Sequence[str | Path] = (), overwrite: bool = False,
+                        replaceable: Callable[[Path], bool] | None = None, option: str = "--overwrite",
+                        what: str = "the outputs") -> Path:
+    """Check that a command may write ``what`` into the folder ``target``; return its absolute path.
+
+    Refused, each with an :class:`OutputError` that names the folder, what is wrong and what to do:
+
+    * ``target`` is a file, or one of its parents is;
+    * ``target`` is, or holds, one of ``inputs`` (replacing the folder would replace the input);
+    * ``target`` is a folder that is not empty, unless ``overwrite`` is set or ``replaceable(target)``
+      says it holds only what an earlier run of the same command wrote (e.g. the demo's folder).
+
+    Symbolic links in ``target`` are resolved: the folder they point to is the one written.
+    """
+    target = Path(os.path.realpath(os.fspath(target)))
+    existing = next((p for p in [target, *target.parents] if os.path.lexists(p)), None)
+    if existing is not None and existing != target and not existing.is_dir():
+        raise OutputError(f"cannot write {what} into {target}: {existing} is a file, not a folder")
+    for item in inputs:
+        source = Path(os.path.realpath(os.fspath(item)))
+        if source == target or target in source.parents:
+            raise OutputError(f"{target}: holds {source}, an input of this command; writing {what} there would "
+                              f"replace it: choose an output folder that holds none of the inputs")
+    if os.path.lexists(target):
+        if not target.is_dir():
+            raise OutputError(f"{target}: is a file; {what} go into a folder: give a new or empty folder")
+        try:
+            empty = not any(target.iterdir())
+        except OSError as exc:
+            raise _output_error(exc, target, what) from None
+        if not empty and not overwrite and not (replaceable is not None and replaceable(target)):
+            raise OutputError(f"{target}: is not empty (holds {_listing(target)}); {what} go into a new or empty "
+                              f"folder: choose another, or add {option} to replace what is there")
+    return target
+
+
+@contextmanager
+def output_folder(target: str | Path, *, inputs: Sequence[str | Path] = (), overwrite: bool = False,
+                  replaceable: Callable[[Path], bool] | None = None, option: str = "--overwrite",
+                  what: str = "the outputs") -> Iterator[StagedFolder]:
+    """Write a whole output folder all or nothing: checked, staged beside ``target``, swapped into place.
+
+    ``target`` is checked first (:func:`check_output_folder`). The body writes into
+    ``staged.path``, a new hidden folder beside ``target`` (same file system); when the body
+    returns, an existing ``target`` is moved aside, the staged folder renamed to ``target`` and
+    the old one deleted. So a run never leaves files of an earlier run behind, and when the body
+    fails (a full disk, bad input found late, an interrupt) the staged folder is deleted and
+    ``target`` is exactly as before: an earlier result is kept.
+
+    Yields
+    ------
+    StagedFolder
+
+    Raises
+    ------
+    OutputError
+        From the checks, or when a folder or file cannot be written (an :class:`OSError` in the
+        body: the message names ``target`` and the reason, e.g. "No space left on device").
+    """
+    import shutil
+
+    target = check_output_folder(target, inputs=inputs, overwrite=overwrite, replaceable=replaceable, option=option,
+                                 what=what)
+    created = _missing_folders(target.parent)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        staged = StagedFolder(_new_folder(target.parent, f".{target.name}.angiohull-partial-"), target)
+    except OSError as exc:
+        _remove_created(created)
+        raise _output_error(exc, target, what) from None
+    try:
+        yield staged
+        if os.path.lexists(target):
+            old = target.parent / f".{target.name}.angiohull-old-{staged.path.name.rsplit('-', 1)[-1]}"
+            os.rename(target, old)
+            try:
+                os.rename(staged.path, target)
+            except BaseException:
+                os.rename(old, target)
+                raise
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.rename(staged.path, target)
+    except BaseException as exc:
+        shutil.rmtree(staged.path, ignore_errors=True)
+        _remove_created(created)
+        if isinstance(exc, OSError):
+            raise _output_error(exc, target, what) from None
+        if isinstance(exc, AngiohullError) and str(staged.path) in str(exc):
+            try:  # name the folder the user asked for, not the hidden staging folder
+                renamed = type(exc)(str(exc).replace(str(staged.path), str(target)))
+            except TypeError:
+                raise exc
+            raise renamed from None
+        raise
+
+
+def check_output_file(target: str | Path, *, inputs: Sequence[str | Path] = (), overwrite: bool = False,
+                      option: str = "--overwrite", what: str = "the output") -> Path:
+    """The checks of :func:`output_file` alone (before the work); returns the absolute path."""
+    target = Path(os.path.realpath(os.fspath(target)))
+    existing = next((p for p in target.parents if os.path.lexists(p)), None)
+    if existing is not None and not existing.is_dir():
+        raise OutputError(f"cannot write {what} {target}: {existing} is a file, not a folder")
+    for item in inputs:
+        if Path(os.path.realpath(os.fspath(item))) == target:
+            raise OutputError(f"{target}: is an input of this command; writing {what} there would replace it: "
+                              f"choose another output file")
+    if os.path.isdir(target):
+        raise OutputError(f"{target}: is a folder; give the file to write {what} to, e.g. {target / 'mask.png'}")
+    if os.path.lexists(target) and not overwrite:
+        raise OutputError(f"{target}: exists; choose another file, or add {option} to replace it")
+    return target
+
+
+@contextmanager
+def output_file(target: str | Path, *, inputs: Sequence[str | Path] = (), overwrite: bool = False,
+                option: str = "--overwrite", what: str = "the output") -> Iterator[Path]:
+    """Write one output file all or nothing (the single-file form of :func:`output_folder`).
+
+    Refused with an :class:`OutputError`: ``target`` is a folder, a parent is a file, ``target``
+    is one of ``inputs``, or it exists and ``overwrite`` is not set. The body writes the path
+    yielded (a hidden file beside ``target`` with the same extension); when the body returns, it
+    is renamed over ``target`` (atomic); when it fails, it is deleted and ``target`` is untouched.
+    """
+    target = check_output_file(target, inputs=inputs, overwrite=overwrite, option=option, what=what)
+    created = _missing_folders(target.parent)
+    import secrets
+
+    partial = target.parent / f".{target.stem}.angiohull-partial-{secrets.token_hex(4)}{target.suffix}"
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        yield partial
+        os.replace(partial, target)
+    except BaseException as exc:
+        try:
+            partial.unlink()
+        except OSError:
+            pass
+        _remove_created(created)
+        if isinstance(exc, OSError):
+            raise _output_error(exc, target, what) from None
+        if isinstance(exc, AngiohullError) and str(partial) in str(exc):
+            try:
+                renamed = type(exc)(str(exc).replace(str(partial), str(target)))
+            except TypeError:
+                raise exc
+            raise renamed from None
+        raise
 
 
 # -- quantitative coronary analysis of a written result: load, write ---------------------------------

@@ -10,7 +10,7 @@
 * :mod:`.stats`, :mod:`.figures`, :mod:`.report` — tables (mean, std, 95 % CI), t-tests, figures
   and the Markdown report, recomputed from the rows; :mod:`.paper` holds the paper's published values.
 
-Layer: above metrics and synthetic, below the CLI (DESIGN.md).
+Layer: above metrics and synthetic, below the CLI (docs/conventions.md).
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ replayed from its row. Random view directions (stream 2), N-view selections (3),
 (4) and view triplets (5) have streams of their own.
 
 Random view directions are uniform on the sphere: ``z = 2 u1 - 1``, ``phi = 2 pi u2`` give the
-detector direction ``d = (sqrt(1 - z^2) cos phi, sqrt(1 - z^2) sin phi, z)``, which DESIGN.md's
+detector direction ``d = (sqrt(1 - z^2) cos phi, sqrt(1 - z^2) sin phi, z)``, which the conventions'
 ``d = (sin a cos b, -cos a cos b, sin b)`` turns into ``secondary b = asin(z)`` in [-90, 90] and
 ``primary a = atan2(d_x, -d_y)`` in (-180, 180].
 
@@ -92,7 +92,7 @@ def sphere_directions(count: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def direction_angles(direction: Sequence[float]) -> tuple[float, float]:
-    """``(primary_deg, secondary_deg)`` of a detector direction ``d`` (DESIGN.md convention)."""
+    """``(primary_deg, secondary_deg)`` of a detector direction ``d`` (docs/conventions.md convention)."""
     x, y, z = (float(c) for c in direction)
     secondary = math.degrees(math.asin(max(-1.0, min(1.0, z))))
     primary = math.degrees(math.atan2(x, -y))

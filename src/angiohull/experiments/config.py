@@ -31,10 +31,10 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
+from .._yaml import load_yaml
 from ..errors import AngiohullError
 from .._models import find_model, short_repr
 from ..synthetic.corruptions import CORRUPTION_KINDS, CorruptionSpec, parse_corruption
@@ -43,7 +43,7 @@ from ..synthetic.views import parse_views
 __all__ = [
     "ConfigError", "ExperimentConfig", "GeneratorSettings", "ReconstructionSettings", "TreesDesign", "NViewsDesign",
     "AnglesDesign", "Sweep", "SweepValues", "METRICS", "TREE_METRICS", "CONFIG_FORMAT", "load_config", "shipped_config_names",
-    "shipped_config_path", "config_from_dict", "config_to_dict",
+    "shipped_config_path", "config_from_dict", "config_to_dict", "MAX_CASES",
 ]
 
 CONFIG_FORMAT = 1
@@ -55,12 +55,15 @@ TREE_METRICS: tuple[str, ...] = ("centerline_mean_mm", "centerline_p95_mm", "ot1
 the case then builds the reconstruction's vessel tree and scores it against the generator's."""
 
 METRICS: tuple[str, ...] = ("dice3d", "iou3d", "chamfer_mm", "dice2d_paper", "dice2d", "time_s", *TREE_METRICS)
-"""Metric names a configuration may ask for (DESIGN.md, "Metrics"); ``time_s`` is the reconstruction alone."""
+"""Metric names a configuration may ask for (docs/conventions.md, "Metrics"); ``time_s`` is the reconstruction alone."""
 
 Metric = Literal["dice3d", "iou3d", "chamfer_mm", "dice2d_paper", "dice2d", "time_s", "centerline_mean_mm",
                  "centerline_p95_mm", "ot1mm", "cldice", "radius_mae_mm", "radius_bias_mm", "branch_recall",
                  "branch_precision", "bifurcation_error_mm"]
 Level = Literal["simple", "moderate", "tortuous"]
+
+MAX_CASES = 1_000_000
+"""Most cases an experiment may have."""
 
 _QUICK_MIN_TREES = 2  # trees per group: two, so a standard deviation exists
 _QUICK_MIN_VALUES = 3  # sweep values: three, so a curve keeps its shape
@@ -139,7 +142,13 @@ class ReconstructionSettings(_Model):
     @field_validator("threshold_px")
     @classmethod
     def _finite_threshold(cls, value: float) -> float:
-        return _finite(value, "threshold_px")
+        from ..reconstruction import check_threshold_px
+
+        _finite(value, "threshold_px")
+        try:
+            return check_threshold_px(value, "threshold_px")
+        except AngiohullError as exc:
+            raise ValueError(str(exc).removeprefix("threshold_px ")) from None
 
     @model_validator(mode="before")
     @classmethod
@@ -381,6 +390,39 @@ class ExperimentConfig(_Model):
 
     _unique_metrics = field_validator("metrics")(_each_once("metric"))
 
+    def case_count(self) -> int:
+        """How many cases the design expands to (without building them)."""
+        design = self.design
+        if isinstance(design, TreesDesign):
+            values = design.sweep.values.count() if design.sweep is not None else 1
+            return len(design.tortuosity) * design.trees * values
+        if isinstance(design, NViewsDesign):
+            return (design.n_views.max - design.n_views.min + 1) * design.selections
+        return design.triplets
+
+    def fewest_views(self) -> int:
+        """The fewest views any case of the design has."""
+        design = self.design
+        if isinstance(design, TreesDesign):
+            return len(parse_views(design.views))
+        if isinstance(design, NViewsDesign):
+            return design.n_views.min
+        return 3
+
+    @model_validator(mode="after")
+    def _within_bounds(self) -> "ExperimentConfig":
+        count = self.case_count()
+        if count > MAX_CASES:
+            raise _problem("design", f"expands to {count:,} cases; expected at most {MAX_CASES:,} (a million cases "
+                                     f"take weeks on a workstation, and their records alone gigabytes): lower "
+                                     f"trees, selections, triplets or the sweep's count")
+        need = self.reconstruction.min_views
+        if need is not None and need > self.fewest_views():
+            raise _problem("reconstruction.min_views", f"got {need}; expected at most {self.fewest_views()}, the "
+                                                       f"number of views of {'every' if isinstance(self.design, TreesDesign) else 'the smallest'} "
+                                                       f"case of this design (a point kept by {need} views needs {need} views)")
+        return self
+
     @model_validator(mode="after")
     def _report_fits_design(self) -> "ExperimentConfig":
         if self.report.ttest is not None:
@@ -564,21 +606,14 @@ def load_config(source: Union[str, Path], *, quick: bool = False) -> ExperimentC
     if path.suffix in (".yaml", ".yml") or path.exists() or "/" in str(source):
         where = str(path)
         try:
-            text = path.read_text(encoding="utf-8")
+            text = path.read_bytes()
         except OSError as exc:
             raise ConfigError(f"{where}: cannot read the experiment config ({exc.strerror or exc}); expected a YAML "
                               f"file or one of the shipped names: {', '.join(shipped_config_names())}") from None
     else:
         entry = shipped_config_path(str(source))
         where = f"{source}.yaml (shipped)"
-        text = entry.read_text(encoding="utf-8")
-    try:
-        data = yaml.safe_load(text)
-    except yaml.MarkedYAMLError as exc:
-        mark = exc.problem_mark
-        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise ConfigError(f"{where}: invalid YAML{at}: {exc.problem}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{where}: invalid YAML: {exc}") from None
+        text = entry.read_bytes()
+    data = load_yaml(text, where, error=ConfigError)
     config = config_from_dict(data, where)
     return config.quick_version() if quick else config

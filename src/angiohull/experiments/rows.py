@@ -85,6 +85,20 @@ def write_atomic(path: str | Path, text: str) -> Path:
     return path
 
 
+_DAMAGED = ("the file was changed by hand or is damaged: restore it, or delete that line to run its case again "
+            "(rows.csv), or choose a new RUN_DIR")
+
+
+def _where_bad_byte(data: bytes, offset: int) -> str:
+    """``line N, column 'name'`` of the byte at ``offset`` of a CSV file (the header names the columns)."""
+    line_start = data.rfind(b"\n", 0, offset) + 1
+    line = data[:offset].count(b"\n") + 1
+    header = data[: data.find(b"\n")].decode("utf-8", "replace").split(",") if b"\n" in data else []
+    index = data[line_start:offset].count(b",")  # quoted commas aside: good enough to point at the cell
+    name = f", column {header[index]!r}" if 0 <= index < len(header) and line > 1 else ""
+    return f"line {line}{name}"
+
+
 def read_rows(path: str | Path, columns: Sequence[str] | None = None) -> tuple[list[str], list[dict[str, Any]]]:
     """The header and the complete rows of a rows file (a partial last line is ignored).
 
@@ -92,10 +106,18 @@ def read_rows(path: str | Path, columns: Sequence[str] | None = None) -> tuple[l
     equal it (else :class:`~angiohull.errors.AngiohullError`).
     """
     path = Path(path)
-    text = path.read_text(encoding="utf-8")
-    if text and not text.endswith("\n"):
-        text = text[: text.rfind("\n") + 1]
-    records = list(csv.reader(io.StringIO(text)))
+    data = path.read_bytes()
+    if data and not data.endswith(b"\n"):
+        data = data[: data.rfind(b"\n") + 1]
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise AngiohullError(f"{path}: {_where_bad_byte(data, exc.start)} is not UTF-8 text (byte "
+                             f"0x{data[exc.start]:02x}); {_DAMAGED}") from None
+    try:
+        records = list(csv.reader(io.StringIO(text)))
+    except csv.Error as exc:
+        raise AngiohullError(f"{path}: not a CSV file ({exc}); {_DAMAGED}") from None
     if not records:
         return (list(columns) if columns is not None else []), []
     header = records[0]
@@ -107,7 +129,14 @@ def read_rows(path: str | Path, columns: Sequence[str] | None = None) -> tuple[l
     for number, record in enumerate(records[1:], start=2):
         if len(record) != len(header):
             raise AngiohullError(f"{path}: line {number} has {len(record)} fields, expected {len(header)}")
-        row = {c: parse_value(c, v) for c, v in zip(header, record)}
+        row = {}
+        for column, cell in zip(header, record):
+            try:
+                row[column] = parse_value(column, cell)
+            except ValueError:
+                kind = "an integer" if column in INT_COLUMNS else "a number (or empty, or nan)"
+                raise AngiohullError(f"{path}: line {number}, column {column!r}: {cell!r} is not {kind}; "
+                                     f"{_DAMAGED}") from None
         if row["case_id"] not in seen:
             seen.add(row["case_id"])
             rows.append(row)
@@ -142,9 +171,22 @@ class RowsJournal:
         return rows
 
     def _write(self, cells: Sequence[str]) -> None:
-        self._writer.writerow(cells)
-        self._handle.flush()
-        os.fsync(self._handle.fileno())
+        size = os.fstat(self._handle.fileno()).st_size  # everything before is flushed: the end of the file
+        try:
+            self._writer.writerow(cells)
+            self._handle.flush()
+            os.fsync(self._handle.fileno())
+        except OSError:  # e.g. a full disk: drop what got out of the line, keep every whole row
+            handle, self._handle, self._writer = self._handle, None, None
+            try:
+                handle.close()
+            except OSError:
+                pass
+            try:
+                os.truncate(self.path, size)
+            except OSError:
+                pass
+            raise
 
     def append(self, row: dict[str, Any]) -> None:
         """Write one row (exactly the journal's columns) and make it durable."""

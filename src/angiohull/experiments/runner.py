@@ -40,13 +40,14 @@ import numpy as np
 import yaml
 
 from .. import __version__
-from ..errors import AngiohullError
+from .._yaml import read_yaml_file
+from ..errors import AngiohullError, OutputError
 from .cases import STATUSES, expand_cases, row_columns, run_case
 from .config import ConfigError, ExperimentConfig, config_from_dict, config_to_dict
 from .rows import RowsJournal, read_rows, rows_to_csv, write_atomic
 
 __all__ = ["RunSummary", "run_experiment", "prepare_run_dir", "default_workers", "load_run", "RunData",
-           "CONFIG_FILE", "CASES_FILE", "ROWS_FILE", "RESULTS_FILE", "RUN_FILE"]
+           "CONFIG_FILE", "CASES_FILE", "ROWS_FILE", "RESULTS_FILE", "RUN_FILE", "LOCK_FILE"]
 
 CONFIG_FILE, CASES_FILE, ROWS_FILE, RESULTS_FILE, RUN_FILE = "config.yaml", "cases.jsonl", "rows.csv", "results.csv", "run.json"
 
@@ -163,10 +164,7 @@ def prepare_run_dir(config: ExperimentConfig, run_dir: str | Path) -> Path:
         raise AngiohullError(f"{run_dir}: not a directory")
     stored = run_dir / CONFIG_FILE
     if stored.exists():
-        try:
-            data = yaml.safe_load(stored.read_text(encoding="utf-8"))
-        except (OSError, yaml.YAMLError) as exc:
-            raise ConfigError(f"{stored}: cannot read the run's configuration ({exc})") from None
+        data = read_yaml_file(stored, error=ConfigError, what="the run's configuration")
         previous = config_from_dict(data, str(stored))
         if _canonical(previous) != _canonical(config):
             diffs = _differences(config_to_dict(previous), config_to_dict(config))
@@ -175,9 +173,14 @@ def prepare_run_dir(config: ExperimentConfig, run_dir: str | Path) -> Path:
                 f"{' ...' if len(diffs) > 5 else ''}); resume it with the same CONFIG and --quick setting, "
                 f"or choose a new RUN_DIR")
         return run_dir
-    if run_dir.exists() and any(run_dir.iterdir()):
+    if run_dir.exists():
+        others = sorted(p.name for p in run_dir.iterdir() if not p.name.startswith("."))
         if (run_dir / ROWS_FILE).exists():
             raise AngiohullError(f"{run_dir} has {ROWS_FILE} but no {CONFIG_FILE}; choose a new RUN_DIR")
+        if others:
+            shown = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
+            raise AngiohullError(f"{run_dir}: is not empty (holds {shown}) and holds no run ({CONFIG_FILE}); a run "
+                                 f"goes into a new or empty folder, or the folder of an earlier run to resume it")
     run_dir.mkdir(parents=True, exist_ok=True)
     header = (f"# resolved configuration of the experiment run in this folder (angiohull {__version__});\n"
               f"# `angiohull experiment {stored} -o OTHER_DIR` reruns it\n")
@@ -218,9 +221,90 @@ def _update_run_json(run_dir: Path, config: ExperimentConfig, total: int, rows: 
     write_atomic(path, json.dumps(record, indent=1) + "\n")
 
 
+# -- one runner per run directory ------------------------------------------------------------------
+LOCK_FILE = ".angiohull.lock"
+"""The lock file of a run directory: held (``flock``) by the runner working in it, with who that is."""
+
+
+class _RunLock:
+    """An exclusive ``flock`` on ``RUN_DIR/.angiohull.lock`` for as long as a runner works in the folder.
+
+    The file records who holds it (pid, host, start time); the operating system releases the lock
+    when the holder's process ends, however it ends, so a killed runner never blocks the next one.
+    Where ``fcntl`` does not exist (Windows) no lock is taken.
+    """
+
+    def __init__(self, run_dir: Path):
+        self.path = run_dir / LOCK_FILE
+        self.handle = None
+
+    def acquire(self) -> "_RunLock":
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not POSIX
+            return self
+        handle = open(self.path, "a+", encoding="utf-8")
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            handle.seek(0)
+            holder = handle.read().strip()
+            handle.close()
+            try:
+                info = json.loads(holder)
+                who = f"process {info['pid']} on {info['host']}, started {info['started']}"
+            except (ValueError, KeyError, TypeError):
+                who = "another process"
+            raise AngiohullError(f"{self.path.parent}: another runner is working in this run directory ({who}); "
+                                 f"wait for it to finish (or stop it), then run the same command to resume") from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(json.dumps({"pid": os.getpid(), "host": platform.node(),
+                                 "started": datetime.now(timezone.utc).isoformat(timespec="seconds")}) + "\n")
+        handle.flush()
+        self.handle = handle
+        return self
+
+    def release(self) -> None:
+        if self.handle is not None:
+            self.handle.close()  # closing the file releases the lock; the file stays (no race on its name)
+            self.handle = None
+
+
 # -- executors --------------------------------------------------------------------------------------
-def _ignore_sigint() -> None:  # pragma: no cover - runs in the worker processes
+_PARENT_POLL_S = 1.0
+
+
+def _worker_init(parent_pid: int) -> None:  # pragma: no cover - runs in the worker processes
+    """Worker set-up: ignore SIGINT (the runner stops the pool), and end with the runner.
+
+    A runner killed by SIGKILL (or SIGTERM, whose default action runs no clean-up) cannot stop its
+    pool; its workers would run on for minutes. On Linux the kernel sends each worker SIGKILL when
+    the runner dies (``prctl(PR_SET_PDEATHSIG)``); everywhere, a thread of each worker checks once a
+    second that its parent is still the runner and ends the worker otherwise.
+    """
+    import threading
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            PR_SET_PDEATHSIG = 1
+            libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent_pid:  # the runner died before the line above
+        os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(_PARENT_POLL_S)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="angiohull-parent-watch", daemon=True).start()
 
 
 def _run_serial(cases: Sequence[dict[str, Any]]) -> Iterator[dict[str, Any]]:
@@ -230,7 +314,8 @@ def _run_serial(cases: Sequence[dict[str, Any]]) -> Iterator[dict[str, Any]]:
 
 def _run_processes(cases: Sequence[dict[str, Any]], workers: int) -> Iterator[dict[str, Any]]:
     context = multiprocessing.get_context("spawn")  # no fork of a process that may hold threads
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_ignore_sigint)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_worker_init,
+                               initargs=(os.getpid(),))
     pending = iter(cases)
     in_flight = set()
     try:
@@ -256,12 +341,56 @@ def _run_processes(cases: Sequence[dict[str, Any]], workers: int) -> Iterator[di
         pool.shutdown(wait=True, cancel_futures=True)
 
 
+DASK_PROBE_TIMEOUT_S = 5.0
+"""How long a TCP connection to the scheduler's address may take before the address counts as unreachable."""
+
+_SCHEDULER_FORM = "tcp://HOST:PORT (e.g. tcp://10.0.0.5:8786), or tls://, ucx://, inproc:// addresses"
+
+
+def _check_scheduler_address(address: str) -> None:
+    """Fail fast on a malformed address, or a tcp:// / tls:// address nothing listens on (the Dask
+    client itself retries until its timeout)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    if not isinstance(address, str) or not address.strip() or any(c.isspace() for c in address):
+        raise AngiohullError(f"--scheduler: {address!r} is not a scheduler address; expected {_SCHEDULER_FORM}")
+    text = address if "://" in address else f"tcp://{address}"
+    try:
+        parts = urlsplit(text)
+        port = parts.port
+    except ValueError as exc:
+        raise AngiohullError(f"--scheduler: {address!r} is not a scheduler address ({exc}); expected "
+                             f"{_SCHEDULER_FORM}") from None
+    if parts.scheme not in ("tcp", "tls", "ucx", "inproc", "ws", "wss"):
+        raise AngiohullError(f"--scheduler: {address!r} has an unknown protocol {parts.scheme!r}; expected {_SCHEDULER_FORM}")
+    if parts.scheme not in ("tcp", "tls"):
+        return
+    if not parts.hostname or parts.path not in ("", "/") or parts.query or parts.fragment:
+        raise AngiohullError(f"--scheduler: {address!r} is not a scheduler address; expected {_SCHEDULER_FORM}")
+    host, port = parts.hostname, 8786 if port is None else port
+    try:
+        with socket.create_connection((host, port), timeout=DASK_PROBE_TIMEOUT_S):
+            pass
+    except socket.gaierror as exc:
+        raise AngiohullError(f"--scheduler: cannot reach the Dask scheduler at {address}: unknown host {host!r} "
+                             f"({exc.strerror or exc})") from None
+    except OSError as exc:
+        if isinstance(exc, TimeoutError):
+            reason = f"no answer within {DASK_PROBE_TIMEOUT_S:g} s"
+        else:
+            reason = exc.strerror or str(exc) or type(exc).__name__
+        raise AngiohullError(f"--scheduler: cannot reach the Dask scheduler at {address} ({reason}); start one with "
+                             f"`dask scheduler` and workers with `dask worker {address}`") from None
+
+
 def _connect_dask(address: str):
     """A client of the Dask scheduler at ``address`` (errors here, before any work starts)."""
     try:
         from distributed import Client
     except ImportError:
         raise AngiohullError("--scheduler needs dask.distributed: pip install 'angiohull[cluster]'") from None
+    _check_scheduler_address(address)
     try:
         return Client(address, timeout=f"{DASK_CONNECT_TIMEOUT_S}s", set_as_default=False)
     except (OSError, TimeoutError, ValueError) as exc:
@@ -326,12 +455,34 @@ def run_experiment(config: ExperimentConfig, run_dir: str | Path, *, workers: Op
     cases = expand_cases(config)
     columns = row_columns(config)
     client = _connect_dask(scheduler) if scheduler is not None else None
+    lock = None
     try:
         run_dir = prepare_run_dir(config, run_dir)
-    except BaseException:
+        lock = _RunLock(Path(run_dir)).acquire()
+        return _run_locked(config, Path(run_dir), cases, columns, client, scheduler, workers, stream, max_cases)
+    except OSError as exc:  # a full disk, a folder that cannot be written
+        raise _write_error(exc, Path(run_dir)) from None
+    finally:
+        if lock is not None:
+            lock.release()
         if client is not None:
             client.close()
-        raise
+
+
+def _write_error(exc: OSError, run_dir: Path) -> AngiohullError:
+    import errno
+
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    where = f" ({exc.filename})" if exc.filename else ""
+    hint = "free some space" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else "make the folder writable"
+    return OutputError(f"cannot write the run into {run_dir}{where}: {reason}; every row finished before is kept "
+                       f"whole in {ROWS_FILE}: {hint}, then run the same command to resume")
+
+
+def _run_locked(config: ExperimentConfig, run_dir: Path, cases: list[dict[str, Any]], columns: list[str], client,
+                scheduler: Optional[str], workers: Optional[int], stream: Optional[TextIO],
+                max_cases: Optional[int]) -> RunSummary:
+    """The run itself, with the run directory prepared and locked."""
     write_atomic(run_dir / CASES_FILE, "".join(json.dumps(c, sort_keys=True) + "\n" for c in cases))
     journal = RowsJournal(run_dir / ROWS_FILE, columns)
     known = {int(r["case_id"]): r for r in journal.open()}
@@ -339,8 +490,6 @@ def run_experiment(config: ExperimentConfig, run_dir: str | Path, *, workers: Op
     unknown = [k for k in known if not 0 <= k < total]
     if unknown:
         journal.close()
-        if client is not None:
-            client.close()
         raise AngiohullError(f"{run_dir / ROWS_FILE}: case_id {unknown[0]} is not a case of this experiment; "
                              f"choose a new RUN_DIR")
     pending = [c for c in cases if c["case_id"] not in known]
@@ -412,10 +561,7 @@ def load_run(run_dir: str | Path) -> RunData:
     if not stored.is_file():
         raise AngiohullError(f"{run_dir}: not a run directory (no {CONFIG_FILE}); run `angiohull experiment CONFIG "
                              f"-o {run_dir}` first")
-    try:
-        data = yaml.safe_load(stored.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{stored}: cannot read the run's configuration ({exc})") from None
+    data = read_yaml_file(stored, error=ConfigError, what="the run's configuration")
     config = config_from_dict(data, str(stored))
     columns = row_columns(config)
     rows_path = run_dir / ROWS_FILE

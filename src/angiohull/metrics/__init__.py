@@ -1,4 +1,4 @@
-"""Scores of a reconstruction (DESIGN.md, "Metrics"). Point sets, trees and arrays only: nothing
+"""Scores of a reconstruction (docs/conventions.md, "Metrics"). Point sets, trees and arrays only: nothing
 here reads files or runs a reconstruction.
 
 * :mod:`.paper`: the paper's protocol: voxel sets (Dice3D, IoU3D, Chamfer) and Dice2D of the

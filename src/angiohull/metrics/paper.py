@@ -1,4 +1,4 @@
-"""Scores of a reconstruction following the paper's protocol (DESIGN.md, "Metrics"): voxel sets and reprojections.
+"""Scores of a reconstruction following the paper's protocol (docs/conventions.md, "Metrics"): voxel sets and reprojections.
 
 Point sets and arrays only: nothing here reads files or runs a reconstruction.
 

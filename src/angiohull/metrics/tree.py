@@ -1,5 +1,5 @@
 """Scores of a reconstructed vessel tree against a true one: centerline distances, overlap, clDice,
-radius error, branch detection and bifurcations (DESIGN.md, "Metrics").
+radius error, branch detection and bifurcations (docs/conventions.md, "Metrics").
 
 Notation
 --------

@@ -1,4 +1,4 @@
-"""Centerline points from the carved cloud (DESIGN.md, method step 4)."""
+"""Centerline points from the carved cloud (docs/conventions.md, method step 4)."""
 
 from __future__ import annotations
 

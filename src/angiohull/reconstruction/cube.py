@@ -17,7 +17,7 @@ MAX_DENSE_RESOLUTION = 1024
 
 @dataclass(frozen=True)
 class Lattice:
-    """``linspace(-R, R, K)`` on each axis (DESIGN.md, method step 2).
+    """``linspace(-R, R, K)`` on each axis (docs/conventions.md, method step 2).
 
     Attributes
     ----------

@@ -1,7 +1,7 @@
 """Carving engines: which lattice points survive every view.
 
 An engine is a function ``(lattice, projections, masks, *, threshold_px, min_views=None) ->
-CarveOutcome``. All engines implement the same rule (DESIGN.md, method step 3): a point is kept by a
+CarveOutcome``. All engines implement the same rule (docs/conventions.md, method step 3): a point is kept by a
 view when it lies in front of the source (``w > 0``) and the Euclidean distance from its projection
 to the nearest mask pixel centre is strictly below ``threshold_px``; views are applied in the given
 order, each to the survivors of the previous ones. With ``min_views = k`` (robust carving, beyond

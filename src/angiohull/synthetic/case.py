@@ -1,7 +1,7 @@
 """A synthetic study: a drawn tree, its masks in chosen views, corruptions, and the ground truth.
 
 :func:`make_case` does the work in memory (seeded, replayable); :func:`write_case` writes a study
-folder (DESIGN.md format) plus the ground truth and the records that replay it:
+folder (docs/conventions.md format) plus the ground truth and the records that replay it:
 
 =======================  ==========================================================================
 ``study.yaml``, masks/   the study, as any other (views as ``carm:``), ``ground_truth: gt.npy``,
@@ -36,12 +36,15 @@ from .tree import TORTUOSITY_LEVELS, TREE_KINDS, CoronaryTree, TreeParams, build
 from .views import carm_views
 
 __all__ = ["SynthOptions", "SyntheticCase", "make_case", "write_case", "read_case_record", "replay_case", "fit_problem",
-           "GT_SURFACE_SPACING_MM", "GT_LUMEN_SPACING_MM"]
+           "GT_SURFACE_SPACING_MM", "GT_LUMEN_SPACING_MM", "MAX_DETECTOR_PX"]
 
 GT_SURFACE_SPACING_MM = 0.3
 """Spacing of the ground-truth surface points (``gt.npy``), mm: ten per 3 mm voxel edge."""
 GT_LUMEN_SPACING_MM = 0.5
 """Grid step of the ground-truth lumen points (``gt_lumen.npy``), mm."""
+MAX_DETECTOR_PX = 8192
+"""Largest detector (rows = columns) of a synthetic study: flat-panel detectors have 1024-2048
+pixels a side, and an 8192 x 8192 mask already takes 64 MiB per view (100000 asked for 9.3 GiB)."""
 
 
 @dataclass(frozen=True)
@@ -69,6 +72,10 @@ class SynthOptions:
         for name in ("sid_mm", "sod_mm", "pixel_mm"):
             object.__setattr__(self, name, _v.positive_finite(getattr(self, name), name))
         object.__setattr__(self, "size", _v.positive_int(self.size, "size"))
+        if self.size > MAX_DETECTOR_PX:
+            raise AngiohullError(f"size (detector rows = columns, --size) must be at most {MAX_DETECTOR_PX} pixels, got "
+                                 f"{self.size}: real detectors have 1024-2048, and each view's mask takes size**2 "
+                                 f"bytes ({self.size ** 2 / 2 ** 30:.1f} GiB here)")
         if self.sod_mm >= self.sid_mm:
             raise AngiohullError(f"sod_mm must be smaller than sid_mm, got sod_mm={self.sod_mm} >= sid_mm={self.sid_mm}")
         specs = tuple(parse_corruption(c) if isinstance(c, str) else c for c in self.corruptions)
@@ -204,7 +211,9 @@ def make_case(options: SynthOptions = SynthOptions(), *, tree_params: TreeParams
             current = after
         changed.append(tuple(counts))
         if not current.any():
-            raise AngiohullError(f"view {name}: the corruptions erased every vessel pixel")
+            raise AngiohullError(f"view {name}: the corruptions erased all {int(np.count_nonzero(mask))} vessel pixels; "
+                                 f"every view needs some left: use fewer or milder corruptions (e.g. a smaller N in "
+                                 f"missing=N, or a smaller p in fn=P)")
         views.append(View.from_carm(name, current, geometry))
     return SyntheticCase(options, seed, tree, tuple(views), tuple(clean), tuple(tuple(r) for r in records),
                          tuple(changed), surface)

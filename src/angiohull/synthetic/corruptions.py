@@ -8,7 +8,7 @@ record gives the same image. A :class:`CorruptionSpec` says what to draw (``tran
 with a numpy Generator, looking at the mask where the corruption depends on it (a missing segment is
 cut where there is vessel).
 
-Pixel conventions (DESIGN.md): pixel ``(row, col)`` has its centre at ``(u, v) = (col, row)``.
+Pixel conventions (docs/conventions.md): pixel ``(row, col)`` has its centre at ``(u, v) = (col, row)``.
 Geometric corruptions map the image content by an affine map ``x' = A (x - c) + c + t`` about the
 image centre ``c = ((cols - 1) / 2, (rows - 1) / 2)`` in ``(u, v)``; each output pixel takes the
 input pixel nearest to its pre-image (outside the input: background), so integer translations are

@@ -10,7 +10,7 @@ query on it is exact up to floating point:
   consecutive segments);
 * a tube given by a single vertex is one sphere (a zero-length capsule) of that vertex's radius.
 
-Pixel convention (DESIGN.md): pixel ``(r, c)`` of a view has its centre at ``(u, v) = (c, r)``;
+Pixel convention (docs/conventions.md): pixel ``(r, c)`` of a view has its centre at ``(u, v) = (c, r)``;
 its ray is the half-line from the X-ray source through that centre, towards ``w > 0``. A pixel is
 vessel in :meth:`TubePhantom.silhouette` iff that ray passes within a segment's radius of the
 segment.

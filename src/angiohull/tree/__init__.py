@@ -1,4 +1,4 @@
-"""The vessel tree, the project's central result (DESIGN.md, "The vessel tree").
+"""The vessel tree, the project's central result (docs/conventions.md, "The vessel tree").
 
 * :mod:`.model`: :class:`VesselTree` and :class:`Branch` (ordered centerlines with radii, the
   topology, resampling, arc length, tangents, JSON);

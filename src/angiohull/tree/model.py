@@ -1,4 +1,4 @@
-"""The vessel tree: ordered centerlines with radii and their topology (DESIGN.md, "The vessel tree").
+"""The vessel tree: ordered centerlines with radii and their topology (docs/conventions.md, "The vessel tree").
 
 Notation: a tree has B branches; branch ``b`` has ``M_b >= 2`` points ``points_mm[b]`` (mm, DICOM
 patient frame, listed from the proximal end) with a lumen radius ``radius_mm[b]`` (mm, > 0) per
