@@ -9,8 +9,7 @@ its outcome (improved / unchanged / reverted), the agreement of the views after 
 coverage, :func:`angiohull.reconstruction.calibration.view_coverage`), the silhouette fit's outline
 RMS, and whether the command line would warn (:func:`angiohull.workflow.agreement_warning` or a
 reverted calibration, or an ambiguous one: another view moved instead explains the masks as well).
-The report counts the cases that lose without a warning (the issue's bar:
-none).
+The report counts the cases that lose without a warning (the bar: none).
 
 Cases (the same defaults for all):
 

@@ -162,7 +162,8 @@ def _detector_spacing_mm(view) -> float | None:
 
 def evaluation_scores(study: Study, result: ReconstructionResult, silhouettes: list[np.ndarray]) -> dict[str, Any]:
     """The scores of ``angiohull evaluate``: 3D against the ground truth, 2D against the masks, and,
-    when the study has a true tree, the tree scores (:func:`tree_evaluation_scores`).
+    when the study has a true tree and the reconstruction built one (or tried), the tree scores
+    (:func:`tree_evaluation_scores`).
 
     ``silhouettes`` are the reconstruction's silhouettes from :func:`view_silhouettes`.
 
@@ -186,8 +187,8 @@ def evaluation_scores(study: Study, result: ReconstructionResult, silhouettes: l
         "time_s": result.time_s,
         "n_points": int(len(result.vessel_points_mm)),
     }
-    if study.ground_truth_tree is not None:
-        scores.update(tree_evaluation_scores(study, result))
+    if study.ground_truth_tree is not None and (result.tree is not None or result.tree_error is not None):
+        scores.update(tree_evaluation_scores(study, result))  # (not when the tree was not asked for: --no-tree)
     return scores
 
 
