@@ -120,6 +120,12 @@ def guo_hall_thin(mask: np.ndarray, *, keep_edge: bool = False) -> np.ndarray:
     candidates = pixels[(flat[pixels[:, None] + four[None, :]] == 0).any(axis=1)]
     recent: list[np.ndarray] = [candidates, candidates]  # pixels to look at, from the last two subiterations
     stamp = np.empty(len(flat), dtype=np.int64)  # scratch: removes repeated indices without sorting
+    # every foreground pixel's neighbourhood code, kept up to date as pixels are deleted
+    code = np.zeros(len(flat), dtype=np.uint8)
+    for bit, offset in enumerate(offsets):
+        code[pixels] |= flat[pixels + offset] << np.uint8(bit)
+    # deleting a pixel clears, in its neighbour at offsets[k], the bit pointing back (k + 4 mod 8)
+    clear = [np.uint8(~(1 << ((bit + 4) % 8)) & 0xFF) for bit in range(8)]
     changed_in_pass = 0
     subiteration = 0
     while True:
@@ -127,12 +133,10 @@ def guo_hall_thin(mask: np.ndarray, *, keep_edge: bool = False) -> np.ndarray:
         stamp[look] = np.arange(len(look))
         look = look[stamp[look] == np.arange(len(look))]  # each pixel once (its last occurrence)
         look = look[flat[look] != 0] if frozen is None else look[(flat[look] != 0) & ~frozen[look]]
-        if len(look):
-            code = np.packbits(flat[look[:, None] + offsets[None, :]], axis=1, bitorder="little")[:, 0]
-            deleted = look[GUO_HALL_TABLES[subiteration][code]]
-        else:
-            deleted = look
+        deleted = look[GUO_HALL_TABLES[subiteration][code[look]]]
         flat[deleted] = 0
+        for bit, offset in enumerate(offsets):
+            code[deleted + offset] &= clear[bit]
         changed_in_pass += len(deleted)
         touched = (deleted[:, None] + offsets[None, :]).ravel()
         recent = [recent[1], touched[flat[touched] != 0]]
