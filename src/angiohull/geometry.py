@@ -387,11 +387,6 @@ def stack_projections(projections: Sequence[Projection]) -> np.ndarray:
     return np.stack([p.matrix for p in projections])
 
 
-_ORIENTATION_PROBE = np.array([0.8017837257372732, 0.5345224838248488, 0.2672612419124244])
-"""A fixed world direction (1, 2/3, 1/3, normalised) that decides the canonical image storage;
-generic, so that no C-arm pose puts two image axes at the same angle to it."""
-
-
 @dataclass(frozen=True)
 class ImageStorage:
     """A way of storing a view's image: transposed first, then columns and rows reversed.
@@ -433,19 +428,24 @@ def canonical_storage(projection: Projection) -> ImageStorage:
 
     The world directions in which the image's column and row indices grow (the first two columns
     of the inverse of the matrix's left 3x3 block) swap under a transpose and change sign under a
-    flip. The canonical image is the one whose column direction is, of these four, the one most
-    along a fixed generic world direction, and whose row direction points along it too. So any
-    storage of the same view (flipped, transposed, with the equivalent matrix) gives the same image
-    once brought into this orientation: steps that look at pixel neighbourhoods (thinning, ties of
-    distance transforms) give the same answer whatever the storage.
+    flip. The canonical image is the one whose row index grows, of these four directions, the most
+    toward the feet (-z), and whose columns complete the DICOM C-arm convention's handedness
+    (column direction x row direction points back toward the source). Every view of the C-arm
+    convention (secondary angle within +-90 degrees) is canonical as it is; any storage of the same
+    view (flipped, transposed, with the equivalent matrix) gives the same image once brought into
+    this orientation, so steps that look at pixel neighbourhoods (thinning, ties of distance
+    transforms) give the same answer whatever the storage.
     """
-    inverse = np.linalg.inv(projection.matrix[:, :3])
+    matrix = projection.matrix
+    inverse = np.linalg.inv(matrix[:, :3])
     column, row = inverse[:, 0], inverse[:, 1]
-    options = [(column, False, False), (-column, False, True), (row, True, False), (-row, True, True)]
-    # (direction, transpose, reverse it) for the canonical column direction
-    direction, transpose, reverse_first = max(options, key=lambda o: float(o[0] @ _ORIENTATION_PROBE))
-    second = row if not transpose else column
-    reverse_second = float(second @ _ORIENTATION_PROBE) < 0
-    # after a transpose the stored columns are the old rows: reversing the canonical column
-    # direction flips the (new) columns, reversing the row direction flips the (new) rows
-    return ImageStorage(transpose=transpose, flip_cols=reverse_first, flip_rows=reverse_second)
+    rows, cols = projection.image_shape
+    view = inverse @ np.array([(cols - 1) / 2.0, (rows - 1) / 2.0, 1.0])  # into the scene (w > 0)
+    # (direction, transpose, reverse it) for the canonical row direction
+    options = [(row, False, False), (-row, False, True), (column, True, False), (-column, True, True)]
+    _, transpose, reverse_rows = min(options, key=lambda o: float(o[0][2] / np.linalg.norm(o[0])))
+    new_row = -row if (not transpose and reverse_rows) else row if not transpose else (-column if reverse_rows else column)
+    new_column = column if not transpose else row
+    reverse_cols = float(np.cross(new_column, new_row) @ view) > 0  # it must point back toward the source
+    # after a transpose the stored columns are the old rows, the stored rows the old columns
+    return ImageStorage(transpose=transpose, flip_cols=reverse_cols, flip_rows=reverse_rows)
