@@ -119,7 +119,7 @@ def view_agreement(study: Study, options: ReconstructOptions = ReconstructOption
 def agreement_warning(coverage: dict[str, float], *, calibrated: bool) -> str | None:
     """The warning to give when some view's coverage is below AGREEMENT_MIN_COVERAGE (None if none)."""
     poor = [name for name, value in coverage.items() if value < AGREEMENT_MIN_COVERAGE]
-    if not poor:
+    if not poor or not any(coverage.values()):  # none, or an empty hull, which the reconstruction reports itself
         return None
     listed = ", ".join(f"{name} {100 * value:.0f} %" for name, value in coverage.items())
     which = ", ".join(poor)
