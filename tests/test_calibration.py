@@ -78,7 +78,8 @@ def test_gauge_does_not_depend_on_where_the_estimate_starts(views):
         assert np.allclose(moved - np.stack([j @ translation for j in jacobians]), corrected, atol=1e-9)
 
 
-@pytest.mark.parametrize("seed", [1, 2])
+# one case in the default suite, the other behind the slow marker (the suite's 5-minute budget)
+@pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.slow)])
 def test_a_shift_along_an_axis_two_views_share_moves_the_right_view(seed):
     # Perpendicular views: view 0's columns follow the same patient axis as another view's, so moving
     # view 0 by +20 px or that view by -20 px (with the object translated by about 5 mm along the
@@ -92,7 +93,8 @@ def test_a_shift_along_an_axis_two_views_share_moves_the_right_view(seed):
     assert np.linalg.norm(shifts[1:], axis=1).max() < 0.5
 
 
-@pytest.mark.parametrize("study", ["perpendicular_moderate_007", "perpendicular_tortuous_003"])
+@pytest.mark.parametrize("study", ["perpendicular_moderate_007",
+                                   pytest.param("perpendicular_tortuous_003", marks=pytest.mark.slow)])
 def test_the_authors_perpendicular_ties_move_the_right_view(peer_synthetic_dir, study):
     # The two authors' studies whose near-tie went to the other view while the alternatives were
     # compared after the view-by-view sweeps (Dice3D 37-42 % instead of 78 %). The authors' masks
@@ -126,7 +128,9 @@ def test_of_two_near_equal_corrections_the_one_moving_fewer_views_is_kept(peer_s
     assert np.linalg.norm(shifts[1:], axis=1).max() < 1.0
 
 
-@pytest.mark.parametrize("study", ["perpendicular_tortuous_002", "perpendicular_tortuous_003", "clinical_tortuous_006"])
+@pytest.mark.parametrize("study", ["perpendicular_tortuous_002",
+                                   pytest.param("perpendicular_tortuous_003", marks=pytest.mark.slow),
+                                   pytest.param("clinical_tortuous_006", marks=pytest.mark.slow)])
 def test_the_silhouette_fit_finds_the_last_pixel_where_the_tree_overlaps_itself(peer_synthetic_dir, study):
     # Three of the authors' studies, view 0 moved by (20, 0) px, where most of the tree overlaps
     # itself in some view: the centreline fit (steps 4-6b) left view 0 1.42 / 1.48 / 1.06 px from
@@ -169,7 +173,7 @@ def test_views_that_agree_are_left_alone():
     assert np.abs(np.array(calibration.shifts_px)).max() < 1.0
 
 
-@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.slow)])
 def test_one_view_shifted_by_20_px_is_found_and_the_hull_restored(seed):
     # Clinical views; view 0's mask content moved by (+20, 0) px, unknown to the method.
     clean = make_case(SynthOptions(seed=seed, views="clinical"))
@@ -208,6 +212,7 @@ def test_calibration_inputs_are_checked():
         calibrate_shifts(projections, masks, max_shift_px=0)
 
 
+@pytest.mark.slow  # about 20 s here: the default suite's 5-minute budget (the phantom is reconstructed in test_refine_phantom)
 def test_real_phantom_views_agree_after_calibration(ge_phantom_dir):
     from angiohull.dicom import read_xa_view
     from angiohull.segmentation import segment_vessels
