@@ -152,7 +152,8 @@ def _axis_pieces(axis_local: np.ndarray, shape: tuple[int, ...], branch_per_view
 def _leaves_hull(p: np.ndarray, q: np.ndarray, hull: np.ndarray, block: int = 16) -> np.ndarray:
     """(K,) bool: the straight segment between the lattice points p[k] and q[k] ((K, 3) integer
     indices into ``hull``) passes a lattice point outside ``hull``: sampled every half lattice
-    spacing, each sample rounded to its nearest lattice point (half-way to the even index).
+    spacing, each sample rounded to its nearest lattice point (an offset from p[k] half-way between
+    two lattice steps goes to the even one).
 
     Every sample lies in the box of its segment's ends, so inside the volume. The samples of the
     segments still without a gap are taken ``block`` steps at a time."""
