@@ -151,6 +151,7 @@ def test_the_silhouette_fit_finds_the_last_pixel_where_the_tree_overlaps_itself(
     assert np.linalg.norm(np.array(calibration.shifts_px[0]) - truth[0]) < 0.5
 
 
+@pytest.mark.slow  # about 9 s: the default suite's 5-minute budget
 def test_two_views_truly_off_stay_two_moved_views():
     # Generated seed 0, clinical views: view 0 moved by (20, 0) px and view 2 by (0, 6) px. Holding
     # either in place costs far more than the tolerance of step 6b, so both stay moved (in the gauge
@@ -284,6 +285,7 @@ def test_a_scaled_view_is_found_with_estimate_scale_and_the_hull_restored(tmp_pa
     assert abs(after - reference) <= 2.0  # ... and the scale brings it back
 
 
+@pytest.mark.slow  # about 8 s: the default suite's 5-minute budget (scale fits stay in test_centreline_fit)
 def test_views_that_agree_keep_scale_one():
     case = make_case(SynthOptions(seed=2, views="clinical"))
     calibration = calibrate_shifts([v.projection for v in case.views], [v.mask for v in case.views], estimate_scale=True)

@@ -175,6 +175,7 @@ def test_rca_is_a_c_in_lao_and_runs_down_the_patients_right():
     assert parse_clinical_angles("LAO 45") == (45.0, 0.0)
 
 
+@pytest.mark.slow  # about 18 s (the lumen sampled at 0.1 mm): the default suite's 5-minute budget
 def test_exact_masks_hold_every_lumen_point_and_nothing_farther_than_a_pixel():
     # The exact rasteriser sets a pixel iff the ray through its centre meets the solid. So:
     # (a) a lumen point deeper inside than half a pixel diagonal (at its depth) projects into a set
