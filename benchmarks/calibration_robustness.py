@@ -157,7 +157,8 @@ def main(argv=None) -> int:
               f"{datetime.date.today().isoformat()}, {platform.machine()}, {os.cpu_count()} CPUs, "
               f"{time.perf_counter() - start:.0f} s wall. A case loses when its calibrated Dice3D is more than "
               f"{args.bar:g} points below its clean Dice3D; 'warned' counts the cases where the command line warns "
-              f"(views still disagreeing after calibration, or a reverted calibration).", ""]
+              f"(views still disagreeing after calibration, a reverted calibration, or an ambiguous one: "
+              f"another view's correction explains the masks as well).", ""]
     text = "\n".join(header + _summary(rows, args.bar)) + "\n"
     print(text)
     if args.output is not None:
