@@ -441,11 +441,10 @@ def canonical_storage(projection: Projection) -> ImageStorage:
     column, row = inverse[:, 0], inverse[:, 1]
     rows, cols = projection.image_shape
     view = inverse @ np.array([(cols - 1) / 2.0, (rows - 1) / 2.0, 1.0])  # into the scene (w > 0)
-    # (direction, transpose, reverse it) for the canonical row direction
+    # (direction, transpose, reverse it) for the canonical row direction; after a transpose the
+    # stored rows are the old columns and the stored columns the old rows
     options = [(row, False, False), (-row, False, True), (column, True, False), (-column, True, True)]
-    _, transpose, reverse_rows = min(options, key=lambda o: float(o[0][2] / np.linalg.norm(o[0])))
-    new_row = -row if (not transpose and reverse_rows) else row if not transpose else (-column if reverse_rows else column)
-    new_column = column if not transpose else row
+    new_row, transpose, reverse_rows = min(options, key=lambda o: float(o[0][2] / np.linalg.norm(o[0])))
+    new_column = row if transpose else column
     reverse_cols = float(np.cross(new_column, new_row) @ view) > 0  # it must point back toward the source
-    # after a transpose the stored columns are the old rows, the stored rows the old columns
     return ImageStorage(transpose=transpose, flip_cols=reverse_cols, flip_rows=reverse_rows)

@@ -15,6 +15,7 @@ Three rasterisers, each for a stated purpose:
 from __future__ import annotations
 
 import itertools
+from typing import Sequence
 
 import numpy as np
 from scipy import ndimage as ndi
@@ -100,12 +101,18 @@ def _interior_cells(points: np.ndarray, cell_mm: float) -> np.ndarray:
     return interior
 
 
-def boundary_cells(points_mm: np.ndarray, cell_mm: float) -> np.ndarray:
+def boundary_cells(points_mm: np.ndarray, cell_mm: float, sources_mm: Sequence[np.ndarray] = ()) -> np.ndarray:
     """The points of a grid of spacing ``cell_mm`` that miss one of their six face neighbours: the
-    cells whose union has the same silhouette from any source outside it (all the points when they
-    do not lie on such a grid)."""
+    cells whose union has the same silhouette from any source outside it. All the points when they
+    do not lie on such a grid, or when one of ``sources_mm`` (camera centres) lies in their box."""
     points = _v.points_array(points_mm, error=GeometryError)
-    return points[~_interior_cells(points, _v.positive_finite(cell_mm, "cell_mm", error=GeometryError))]
+    half = _v.positive_finite(cell_mm, "cell_mm", error=GeometryError) / 2.0
+    if len(points) == 0:
+        return points
+    low, high = points.min(axis=0) - half, points.max(axis=0) + half
+    if any(np.all((low <= source) & (source <= high)) for source in sources_mm):
+        return points  # the argument needs every source outside
+    return points[~_interior_cells(points, 2.0 * half)]
 
 
 def cell_silhouette(points_mm: np.ndarray, projection: Projection, cell_mm: float, *,
@@ -143,10 +150,8 @@ def cell_silhouette(points_mm: np.ndarray, projection: Projection, cell_mm: floa
     half = _v.positive_finite(cell_mm, "cell_mm", error=GeometryError) / 2.0
     rows, cols = projection.image_shape
     image = np.zeros((rows, cols), dtype=bool)
-    source = projection.camera_centre_mm
-    if skip_interior and len(points) and np.any((source < points.min(axis=0) - half) |
-                                                 (source > points.max(axis=0) + half)):
-        points = points[~_interior_cells(points, 2.0 * half)]  # (the argument needs the source outside)
+    if skip_interior:
+        points = boundary_cells(points, 2.0 * half, [projection.camera_centre_mm])
     corners = np.array(list(itertools.product((-half, half), repeat=3)))
     centre = projection.camera_centre_mm
     # cells containing or behind the source have no bounded footprint; they are left out

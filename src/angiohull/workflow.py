@@ -147,11 +147,8 @@ def ambiguity_warning(calibration: Calibration, names: Sequence[str]) -> str | N
 def view_silhouettes(study: Study, result: ReconstructionResult) -> list[np.ndarray]:
     """The reconstruction's silhouette in each view at pixel resolution (bool images)."""
     h = result.lattice_spacing_mm
-    points = result.vessel_points_mm
-    inside = [p for p in study.projections if not np.any((p.camera_centre_mm < points.min(axis=0, initial=np.inf) - h) |
-                                                         (p.camera_centre_mm > points.max(axis=0, initial=-np.inf) + h))]
-    if len(points) and not inside:  # the interior cells add nothing seen from outside: dropped once for all views
-        points = boundary_cells(points, h)
+    # the interior cells add nothing seen from outside: dropped once for all views
+    points = boundary_cells(result.vessel_points_mm, h, [p.camera_centre_mm for p in study.projections])
     return [cell_silhouette(points, p, h, skip_interior=False) for p in study.projections]
 
 

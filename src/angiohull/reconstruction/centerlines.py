@@ -5,11 +5,11 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..geometry import Projection
 from ..thinning import guo_hall_thin
 from .engines import mask_pixel_centres
+from .nearest import nearest_with_ties
 
 __all__ = ["skeletonise", "extract_centerlines", "TIE_PX"]
 
@@ -23,20 +23,6 @@ def skeletonise(mask: np.ndarray) -> np.ndarray:
     (:func:`angiohull.thinning.guo_hall_thin` with ``keep_edge=True``: the pixels on the image's edge
     are never deleted)."""
     return guo_hall_thin(mask, keep_edge=True)
-
-
-def _nearest(tree: cKDTree, query: np.ndarray, rank: np.ndarray) -> np.ndarray:
-    """Index of the nearest point of ``tree`` to each query point, ties (within :data:`TIE_PX`)
-    going to the point of lowest ``rank``."""
-    distance, nearest = tree.query(query, k=2 if tree.n > 1 else 1)
-    if distance.ndim == 1:
-        return nearest
-    tied = np.flatnonzero(distance[:, 1] <= distance[:, 0] + TIE_PX)
-    nearest = nearest[:, 0]
-    for i in tied:
-        equally_near = np.asarray(tree.query_ball_point(query[i], distance[i, 0] + TIE_PX))
-        nearest[i] = equally_near[np.argmin(rank[equally_near])]
-    return nearest
 
 
 def extract_centerlines(points_mm: np.ndarray, projections: Sequence[Projection],
@@ -74,6 +60,6 @@ def extract_centerlines(points_mm: np.ndarray, projections: Sequence[Projection]
         skeleton_uv = mask_pixel_centres(skeletonise(mask))
         if len(skeleton_uv) == 0:
             return points[:0]
-        nearest = _nearest(cKDTree(projection.project(points[index])), skeleton_uv, index)
+        _, nearest = nearest_with_ties(projection.project(points[index]), skeleton_uv, TIE_PX, index)
         index = index[nearest] if keep_duplicates else index[np.unique(nearest)]
     return points[index]

@@ -69,11 +69,13 @@ from typing import Sequence
 import numpy as np
 from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
-from ..thinning import guo_hall_thin as thin
 
 from .. import options
 from ..geometry import Projection, canonical_storage
+from ..thinning import guo_hall_thin as thin
+from ..tree.voxels import dilated
 from .cube import Lattice
+from .nearest import nearest_with_ties
 
 __all__ = ["RefineSettings", "REFINED", "clean_mask", "refine_hull", "tube_axis", "centreline_branches",
            "drop_explained_pieces"]
@@ -330,19 +332,6 @@ def tube_axis(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     return ordered[big][axis], radius[axis]
 
 
-def _grown(volume: np.ndarray, cells: int) -> np.ndarray:
-    """``volume`` grown by ``cells`` lattice spacings in the 26-neighbourhood (binary dilation by a
-    cube), one axis at a time."""
-    grown = volume.copy()
-    for _ in range(cells):
-        for axis in range(grown.ndim):
-            moved = np.moveaxis(grown, axis, 0)
-            before = moved.copy()
-            moved[1:] |= before[:-1]
-            moved[:-1] |= before[1:]
-    return grown
-
-
 def _box(mask: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[tuple[int, int], tuple[int, int]]:
     """(row, col) start and stop of the box that holds the mask's pixels and (rows, cols), grown by
     one pixel (within the image)."""
@@ -361,33 +350,18 @@ _TIE_MM = 1e-9
 """Points whose distances differ by less than this are equally near (lattice points often are)."""
 
 
-def _nearest_point(points: np.ndarray, query: np.ndarray, k: int = 8) -> tuple[np.ndarray, np.ndarray]:
-    """(distance, index) of the nearest of ``points`` to each query point; of equally near ones (to
-    :data:`_TIE_MM`), the lowest index, so that the answer does not depend on rounding noise."""
-    tree = cKDTree(points)
-    k = min(k, len(points))
-    distance, index = tree.query(query, k=k)
-    if k == 1:
-        return distance, index
-    tied = distance <= distance[:, :1] + _TIE_MM
-    nearest = np.where(tied, index, len(points)).min(axis=1)
-    for i in np.flatnonzero(tied[:, -1]):  # more equally near points than k: ask for all of them
-        nearest[i] = min(tree.query_ball_point(query[i], distance[i, 0] + _TIE_MM))
-    return distance[:, 0], nearest
-
-
 def _radius_tube(candidates: np.ndarray, radius: np.ndarray, axis: np.ndarray, slack_mm: float,
                  nearest: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(nearest axis point, within its radius + slack) of every candidate. ``nearest``: (distance,
     position in ``axis``) of the candidates' nearest axis points where already known (position -1
     where not), e.g. from a query of more axis points whose nearest is among these."""
     if nearest is None:
-        distance, owner = _nearest_point(candidates[axis], candidates)
+        distance, owner = nearest_with_ties(candidates[axis], candidates, _TIE_MM)
     else:
         distance, owner = nearest[0].copy(), nearest[1].copy()
         unknown = np.flatnonzero(owner < 0)
         if len(unknown):
-            distance[unknown], owner[unknown] = _nearest_point(candidates[axis], candidates[unknown])
+            distance[unknown], owner[unknown] = nearest_with_ties(candidates[axis], candidates[unknown], _TIE_MM)
     return owner, distance <= radius[axis][owner] + slack_mm
 
 
@@ -407,7 +381,7 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
     volume[tuple(local.T)] = True
 
     # 2. connectivity
-    bridged = _grown(volume, settings.bridge_cells)
+    bridged = dilated(volume, settings.bridge_cells) if settings.bridge_cells else volume
     labels, _ = ndi.label(bridged, structure=_TWENTY_SIX)
     point_labels = labels[tuple(local.T)]
     sizes = np.bincount(point_labels)
@@ -453,7 +427,7 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
     nearest = None
     # 4. explanation: drop axis pieces whose pixels other pieces explain in every view
     if settings.unique_fraction > 0:
-        distance, owner = _nearest_point(candidates[axis], candidates)
+        distance, owner = nearest_with_ties(candidates[axis], candidates, _TIE_MM)
         owner, in_tube = _radius_tube(candidates, radius, axis, settings.slack_cells * h, (distance, owner))
         piece = _axis_pieces(local[big][axis], volume.shape,
                              [centreline_branches(c)[r[axis], k[axis]] for _, _, c, r, k in views])
