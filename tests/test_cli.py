@@ -40,7 +40,7 @@ def test_reconstruct_writes_ply_report_and_figure(tmp_path, capsys):
     assert report["n_vessel_points"] == len(vessel) > 0
     assert report["options"] == {"resolution": 40, "threshold_px": 1.0, "engine": "auto", "centerlines": True,
                                  "device": "cpu", "min_views": None, "calibrate": False,
-                                 "calibrate_scale": False, "preset": "paper", "tree": True}
+                                 "calibrate_scale": False, "preset": "paper", "tree": True, "method": "hull"}
     assert report["engine"] == "octree"
     assert [v["name"] for v in report["views"]] == ["ap", "lao90"]
     assert all(v["dice2d_reprojection"] > 80 for v in report["views"])

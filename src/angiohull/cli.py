@@ -13,7 +13,7 @@ from typing import Sequence, TextIO
 
 from . import __version__
 from .errors import AgreementWarning, AngiohullError, DicomGeometryWarning, InputWarning, QcaError, TreeWarning
-from .options import (AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES, PRESETS, RASTERISERS,
+from .options import (AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES, METHODS, PRESETS, RASTERISERS,
                       REFINED_RESOLUTION, TORTUOSITY_LEVELS, TREE_KINDS)
 
 # Only the light modules above are imported at start-up (``angiohull --help`` needs no NumPy); each
@@ -51,6 +51,10 @@ def _add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_beyond_paper_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--method", choices=METHODS, default="hull",
+                        help="hull (default): the visual hull, the paper's method (see --preset); tree "
+                             "(experimental, beyond the paper): the vessel tree from centerline correspondences "
+                             "across the views, tubes fitted to the masks (docs/tree-method.md); two views or more")
     parser.add_argument("--preset", choices=PRESETS, default="paper",
                         help="paper (default): the method as published; refined: specks removed from the masks, a finer "
                              "lattice, small disconnected parts dropped and the hull trimmed to the vessel radii "
@@ -316,8 +320,9 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
     message = workflow.agreement_warning(agreement, calibrated=options.calibrate)
     if message:
         warnings.warn(message, AgreementWarning, stacklevel=1)
-    progress(f"reconstructing {len(study.views)} views ({options.preset} preset) with engine {options.engine}")
-    result = workflow.reconstruct_study(study, options)
+    what = f"{options.preset} preset" if options.method == "hull" else "tree method"
+    progress(f"reconstructing {len(study.views)} views ({what}) with engine {options.engine}")
+    result = workflow.reconstruct_study(study, options, progress=progress)
     progress(f"kept {len(result.vessel_points_mm)} of {result.lattice.n_points} lattice points "
              f"(carving {result.timings_s['carve']:.3f} s)")
     if options.tree:
@@ -394,7 +399,8 @@ def _cmd_reconstruct(args) -> int:
     study = load_study(args.study)
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines, args.device,
                                  min_views=args.min_views, calibrate=args.calibrate,
-                                 calibrate_scale=args.calibrate_scale, preset=args.preset, tree=not args.no_tree)
+                                 calibrate_scale=args.calibrate_scale, preset=args.preset, tree=not args.no_tree,
+                                 method=args.method)
     qca_error, qca_lines = None, []
     viewer_state: dict = {}
     with output_folder(args.output, inputs=[args.study, *study_inputs(study)], overwrite=args.overwrite) as staged:
@@ -460,7 +466,7 @@ def _cmd_evaluate(args) -> int:
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=False, device=args.device,
                                  min_views=args.min_views, calibrate=args.calibrate,
                                  calibrate_scale=args.calibrate_scale, preset=args.preset,
-                                 tree=study.ground_truth_tree is not None)
+                                 tree=study.ground_truth_tree is not None or args.method == "tree", method=args.method)
     _, _, scores = _run_study(study, options, None, progress, figure=False, score=True)
     if args.json:
         print(json.dumps(scores))

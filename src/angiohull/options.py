@@ -8,7 +8,7 @@ choice import their names from here too (one definition); tests check the two ag
 from __future__ import annotations
 
 __all__ = ["DEFAULT_RESOLUTION", "DEFAULT_THRESHOLD_PX", "ENGINE_NAMES", "AUTO_ENGINE", "ENGINE_CHOICES", "PRESETS",
-           "REFINED_RESOLUTION", "RASTERISERS", "TREE_KINDS", "TORTUOSITY_LEVELS"]
+           "REFINED_RESOLUTION", "METHODS", "DEFAULT_METHOD", "RASTERISERS", "TREE_KINDS", "TORTUOSITY_LEVELS"]
 
 DEFAULT_RESOLUTION = 100
 """K of the paper's experiments."""
@@ -30,6 +30,14 @@ PRESETS: tuple[str, ...] = ("paper", "refined")
 
 REFINED_RESOLUTION = 256
 """K of the refined preset (finer than the paper's 100: less thickening)."""
+
+METHODS: tuple[str, ...] = ("hull", "tree")
+"""``reconstruct(method=...)``: ``hull``, the paper's visual hull (either preset); ``tree`` (beyond
+the paper, experimental), the vessel tree from centerline correspondences across the views, with
+tubes fitted to the masks (``reconstruction.model``, docs/tree-method.md)."""
+
+DEFAULT_METHOD = "hull"
+"""The paper's method stays the default until ``tree`` wins on the benchmarks (docs/results/tree-method.md)."""
 
 RASTERISERS: tuple[str, ...] = ("exact", "paper")
 """``exact``: pixel set iff the ray through its centre meets the solid. ``paper``: surface points

@@ -57,6 +57,7 @@ class ReconstructOptions:
     calibrate_scale: bool = False  # also per-view image scales (implies calibrate; three views or more)
     preset: str = "paper"  # "paper" (as published) or "refined" (reconstruction.refine)
     tree: bool = True  # build the vessel tree (and, when writing outputs, its mesh, label volume and exports)
+    method: str = "hull"  # "hull" (the paper's visual hull) or "tree" (reconstruction.model, experimental)
 
     def __post_init__(self) -> None:
         from .reconstruction import MAX_DENSE_RESOLUTION, check_threshold_px
@@ -71,15 +72,24 @@ class ReconstructOptions:
                                           f"{MAX_DENSE_RESOLUTION}], got {k}: K**3 points are carved")
         if self.min_views is not None:
             _v.positive_int(self.min_views, "min_views", error=ReconstructionError)
+        from .options import METHODS
+
+        if self.method not in METHODS:
+            raise ReconstructionError(f"unknown method {self.method!r}; choose one of {list(METHODS)}")
+        if self.method == "tree" and (self.preset != "paper" or self.min_views is not None):
+            raise ReconstructionError("the tree method has no preset or min_views (they choose how the hull is carved); "
+                                      "drop --preset/--min-views or use --method hull")
 
 
-def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOptions()) -> ReconstructionResult:
-    """Reconstruct a loaded study with the given options (views in the study's order)."""
+def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOptions(), *,
+                      progress: Callable[[str], None] | None = None) -> ReconstructionResult:
+    """Reconstruct a loaded study with the given options (views in the study's order); ``progress``
+    gets a line per stage of the tree method."""
     return reconstruct(
         study.projections, study.masks,
         resolution=options.resolution, threshold_px=options.threshold_px, engine=options.engine,
         centerlines=options.centerlines, view_names=study.names, device=options.device, min_views=options.min_views,
-        preset=options.preset, tree=options.tree,
+        preset=options.preset, tree=options.tree, method=options.method, progress=progress,
     )
 
 
@@ -290,7 +300,8 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
         "options": {"resolution": result.lattice.resolution, "threshold_px": options.threshold_px,
                     "engine": options.engine, "centerlines": options.centerlines, "device": options.device,
                     "min_views": options.min_views, "calibrate": options.calibrate,
-                    "calibrate_scale": options.calibrate_scale, "preset": options.preset, "tree": options.tree},
+                    "calibrate_scale": options.calibrate_scale, "preset": options.preset, "tree": options.tree,
+                    "method": options.method},
         "engine": result.engine,
         "cube_of_interest": {"half_edge_mm": result.lattice.half_edge_mm, "resolution": result.lattice.resolution,
                              "lattice_spacing_mm": result.lattice_spacing_mm, "n_lattice_points": result.lattice.n_points},
@@ -306,6 +317,14 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
     }
     if options.tree:
         report["tree"] = tree_summary(result.tree, result.tree_build, result.tree_error)
+    if result.method == "tree" and result.model_build is not None:
+        build = result.model_build
+        report["tree_method"] = {
+            "pairs": [[result.view_names[a], result.view_names[b]] for a, b in build.pairs],
+            "matched_share": [float(x) for x in build.matched_share],
+            "skeleton_pixels": dict(zip(result.view_names, (int(n) for n in build.skeleton_pixels))),
+            "timings_s": {k: float(v) for k, v in build.timings_s.items()},
+        }
     if scores is not None:
         report["scores"] = scores
     return json_safe(report)

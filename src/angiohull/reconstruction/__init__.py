@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -37,6 +37,7 @@ __all__ = [
     "AUTO_ENGINE",
     "ENGINE_CHOICES",
     "PRESETS",
+    "METHODS",
     "MAX_DENSE_RESOLUTION",
     "MAX_THRESHOLD_PX",
     "check_threshold_px",
@@ -50,6 +51,7 @@ DEFAULT_THRESHOLD_PX = options.DEFAULT_THRESHOLD_PX
 AUTO_ENGINE = options.AUTO_ENGINE
 ENGINE_CHOICES = options.ENGINE_CHOICES
 PRESETS = options.PRESETS
+METHODS = options.METHODS
 MAX_THRESHOLD_PX = 32.0
 """Largest distance threshold accepted, pixels. Vessels in an angiogram are 2-20 px wide, so a
 point farther than this from every vessel pixel is not near a vessel; and the exact engines read
@@ -89,6 +91,8 @@ class ReconstructionResult:
     tree: VesselTree | None = None  # the vessel tree (centerlines with radii); None when not requested or not built
     tree_build: TreeBuild | None = None  # how the tree was built (skeleton parts, views' coverage, timings)
     tree_error: str | None = None  # why no tree could be built, when one was requested
+    method: str = "hull"  # "hull" (the paper's visual hull) or "tree" (reconstruction.model)
+    model_build: object | None = None  # the tree method's record (reconstruction.model.ModelBuild)
 
     @property
     def lattice_spacing_mm(self) -> float:
@@ -149,7 +153,8 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
                 resolution: int | None = None, threshold_px: float = DEFAULT_THRESHOLD_PX,
                 engine: str = "auto", centerlines: bool = True, view_names: Sequence[str] | None = None,
                 half_edge_mm: float | None = None, allow_empty: bool = False, device: str = "cpu",
-                min_views: int | None = None, preset: str = "paper", tree: bool = True) -> ReconstructionResult:
+                min_views: int | None = None, preset: str = "paper", tree: bool = True, method: str = "hull",
+                progress: Callable[[str], None] | None = None) -> ReconstructionResult:
     """Carve the visual hull of the masks and, optionally, its centerline points and vessel tree.
 
     Parameters
@@ -187,6 +192,15 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         ``"paper"`` (default): the method as published. ``"refined"`` (beyond the paper, see
         :mod:`.refine`): specks removed from the masks, a finer lattice, small disconnected parts
         dropped and the hull trimmed to the vessel radii the views show.
+    method : {"hull", "tree"}, keyword-only
+        ``"hull"`` (default): the visual hull of ``preset``. ``"tree"`` (beyond the paper,
+        experimental; :mod:`.model`): the hull of the views is carved on the lattice (default
+        K = 256), then the vessel tree is built from centerline correspondences across the views
+        and tubes fitted to the masks; the vessel points are the lattice points inside those tubes,
+        the centerline points the tree's. Needs two views or more; ``preset``, ``min_views`` and
+        ``tree`` do not apply (the tree is the result).
+    progress : callable, optional, keyword-only
+        Called with a line per stage of the tree method.
     tree : bool, keyword-only
         Also build the vessel tree (:func:`.vessel_tree.hull_tree`: the hull's skeleton, centres
         and radii fitted to the views; ``result.tree``). When no tree can be built (a hull too
@@ -197,6 +211,12 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     ReconstructionResult
     """
     checked_masks, names = _check_inputs(projections, masks, view_names)
+    if method not in METHODS:
+        raise ReconstructionError(f"unknown method {method!r}; choose one of {list(METHODS)}")
+    if method == "tree":
+        return _reconstruct_tree(projections, checked_masks, names, resolution=resolution, threshold_px=threshold_px,
+                                 engine=engine, centerlines=centerlines, half_edge_mm=half_edge_mm, device=device,
+                                 min_views=min_views, preset=preset, progress=progress)
     if preset not in PRESETS:
         raise ReconstructionError(f"unknown preset {preset!r}; choose one of {list(PRESETS)}")
     if resolution is None:
@@ -282,4 +302,54 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         tree=vessel_tree,
         tree_build=build,
         tree_error=tree_error,
+    )
+
+
+def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray], names: tuple[str, ...], *,
+                      resolution: int | None, threshold_px: float, engine: str, centerlines: bool,
+                      half_edge_mm: float | None, device: str, min_views: int | None, preset: str,
+                      progress: Callable[[str], None] | None) -> ReconstructionResult:
+    """``reconstruct(method="tree")`` (see :func:`reconstruct`)."""
+    from .model import model_tree
+
+    if len(projections) < 2:
+        raise ReconstructionError(f"method 'tree' matches centerlines across views and needs two views or more, "
+                                  f"got {len(projections)}; use method='hull'")
+    if min_views is not None:
+        raise ReconstructionError("min_views applies to method 'hull' only; the tree method reads every view")
+    if preset != "paper":
+        raise ReconstructionError(f"preset {preset!r} applies to method 'hull' only; leave the preset at 'paper' "
+                                  f"with method 'tree'")
+    threshold = check_threshold_px(threshold_px)
+    if engine not in ENGINE_CHOICES:
+        raise ReconstructionError(f"unknown engine {engine!r}; choose one of {list(ENGINE_CHOICES)}")
+    engine = AUTO_ENGINE if engine == "auto" else engine
+    if device not in ("cpu", "cuda"):
+        raise ReconstructionError(f"unknown device {device!r}; choose 'cpu' or 'cuda'")
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+    lattice = Lattice(cube_half_edge_mm(projections) if half_edge_mm is None else half_edge_mm,
+                      REFINED.resolution if resolution is None else resolution)
+    timings["cube"] = time.perf_counter() - start
+    start = time.perf_counter()
+    if device == "cuda":
+        outcome = carve_cuda(engine, lattice, list(projections), masks, threshold_px=threshold, min_views=None)
+    else:
+        outcome = ENGINES[engine](lattice, list(projections), masks, threshold_px=threshold, min_views=None)
+    timings["carve"] = time.perf_counter() - start
+    if len(outcome.points_mm) == 0:
+        raise _empty_hull_error(outcome, names, lattice)
+    points, vessel_tree, build = model_tree(projections, masks, lattice, support_points_mm=outcome.points_mm,
+                                            progress=progress)
+    timings.update({f"tree_{k}": v for k, v in build.timings_s.items()})
+    timings["reconstruction"] = sum(timings.values())
+    timings["total"] = timings["reconstruction"]
+    return ReconstructionResult(
+        vessel_points_mm=points,
+        centerline_points_mm=vessel_tree.points()[0] if centerlines else None,
+        lattice=lattice, engine=engine, device=device, threshold_px=threshold, view_names=names,
+        survivors_per_view=outcome.survivors_per_view,
+        view_order=outcome.order if outcome.order is not None else tuple(range(len(names))),
+        preset=preset, timings_s=timings, tree=vessel_tree, tree_build=build.tree_build, method="tree",
+        model_build=build,
     )

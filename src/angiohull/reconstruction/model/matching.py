@@ -1,0 +1,346 @@
+"""Correspondences of centerline pixels across views: epipolar candidates, then a dynamic programme
+along each chain of one view that chooses one candidate (or none) per pixel.
+
+Notation: view A's chains are matched into view B. ``p`` is a skeleton pixel of A, ``q`` one of B.
+
+1. **Candidates.** Every 3D point seen at ``p`` lies on ``p``'s ray, and projects into B on the
+   epipolar line of ``p``. The candidates of ``p`` are the places where that line crosses B's
+   skeleton: B's skeleton pixels within ``line_px`` of the line, grouped into runs along B's chains
+   (a run per crossing), each run giving its pixel nearest the line; where a vessel of B runs
+   along the epipolar line the run is long and every ``long_step_px``-th pixel of it is a
+   candidate too (the depth is then undetermined by the line, and the neighbours decide). Each
+   candidate is triangulated (the midpoint of the shortest segment between the two rays).
+2. **Unary cost** of a candidate: its distance to the line (``(d / line_sigma_px)**2``), the
+   disagreement of the vessel radius the two views show at that depth (each view's half-width
+   times depth / focal length; ``(dr / sigma)**2`` with ``sigma = radius_sigma_px`` pixels at
+   the larger scale plus ``radius_sigma_rel`` of the radius), and with three or more views, for
+   every other view: the candidate is dropped when its projection lies farther than
+   ``mask_px`` from that view's mask (it is outside the visual hull), and costs
+   ``(d / other_skeleton_px)**2`` for its distance ``d`` to that view's skeleton. Each term is
+   capped at ``cap``.
+3. **Pairwise cost** between the candidates of neighbouring pixels ``p'`` and ``p`` of a chain:
+   a jump in 3D longer than ``max_stretch`` times the pixel step at that depth (a vessel can run
+   out of A's image plane, so its 3D step may exceed its projected step, but not by much) costs
+   ``jump_weight`` per unit of excess stretch; going over from one chain of B to another costs
+   ``switch_cost`` plus ``turn_weight * (1 - |cos|)`` of the angle between the two chains'
+   directions in B (straight on through a crossing in B is free, but turning onto a vessel that
+   crosses it there, the phantom that two views cannot rule out by the lines alone, bends).
+4. **No match**: a pixel may be left unmatched at ``gap_cost`` (its vessel is hidden or
+   foreshortened in B, or a false skeleton piece); entering or leaving costs ``gap_switch_cost``.
+5. The chains are solved together (padded arrays, one Viterbi step per position along the
+   chains), and each chain keeps its cheapest path.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from scipy import ndimage as ndi
+
+from ...geometry import Projection
+from ..epipolar import ray_directions
+from .graph2d import CenterlineGraph2D
+
+__all__ = ["MatchSettings", "MATCH_SETTINGS", "ViewData", "match_chains", "triangulate_midpoint"]
+
+
+@dataclass(frozen=True)
+class MatchSettings:
+    """Parameters of the correspondence (module notes); the same for every case."""
+
+    depth_range_mm: float = 150.0  # candidates within this of the isocentre's depth along each ray
+    line_step_px: float = 0.5  # the mask is sampled along each epipolar line at this step
+    max_pieces: int = 8  # a run along the line is split in at most this many candidates
+    max_candidates: int = 12  # kept per pixel, cheapest first
+    radius_cap: float = 2.0
+    radius_sigma_px: float = 0.7
+    radius_sigma_rel: float = 0.15
+    mask_px: float = 1.5  # a candidate farther than this from another view's mask is outside the hull
+    other_skeleton_px: float = 2.0  # scale of the cost of a candidate's distance to another view's skeleton
+    cap: float = 4.0  # each unary term at most this
+    max_stretch: float = 3.0  # 3D step over the projected step in A beyond which a jump costs
+    jump_weight: float = 1.0
+    switch_cost: float = 0.5
+    turn_weight: float = 4.0
+    gap_cost: float = 2.0
+    gap_switch_cost: float = 2.0
+    min_chain_px: int = 3  # chains of A with fewer pixels are not matched
+    claim_px: float = 2.0  # B's own match of q lies farther than this plus the half-width from p in A ...
+    claim_cost: float = 1.5  # ... costs this
+
+
+MATCH_SETTINGS = MatchSettings()
+
+
+@dataclass(frozen=True)
+class ViewData:
+    """One view, prepared for matching."""
+
+    projection: Projection
+    mask: np.ndarray  # (rows, cols) bool
+    graph: CenterlineGraph2D
+    image: np.ndarray  # (rows, cols) float32 mask (1 vessel, 0 background)
+    box_uv: tuple[np.ndarray, np.ndarray]  # (u, v) corners of the mask's bounding box, 2 px wider
+    inside_px: np.ndarray  # (rows, cols) distance of each pixel to the nearest background pixel
+    nearest_skeleton: np.ndarray  # (rows, cols) index of the nearest skeleton pixel (-1: none)
+    outside_px: np.ndarray  # (rows, cols) distance of each pixel to the nearest mask pixel
+    skeleton_px: np.ndarray  # (rows, cols) distance of each pixel to the nearest skeleton pixel
+    focal_px: float
+
+
+def triangulate_midpoint(centre_a: np.ndarray, dir_a: np.ndarray, centre_b: np.ndarray,
+                         dir_b: np.ndarray) -> np.ndarray:
+    """Midpoints of the shortest segments between rays ``centre_a + s dir_a`` and ``centre_b + t dir_b``
+    (unit directions (N, 3)); (N, 3) mm."""
+    w0 = centre_a - centre_b
+    b = np.einsum("ij,ij->i", dir_a, dir_b)
+    d = dir_a @ w0
+    e = dir_b @ w0
+    denom = np.maximum(1.0 - b * b, 1e-12)
+    s = (b * e - d) / denom
+    t = (e - b * d) / denom
+    return 0.5 * ((centre_a + s[:, None] * dir_a) + (centre_b + t[:, None] * dir_b))
+
+
+def _sample(image: np.ndarray, uv: np.ndarray, outside: float) -> np.ndarray:
+    u = np.rint(uv[:, 0]).astype(np.int64)
+    v = np.rint(uv[:, 1]).astype(np.int64)
+    ok = (u >= 0) & (v >= 0) & (u < image.shape[1]) & (v < image.shape[0])
+    out = np.full(len(uv), outside)
+    out[ok] = image[v[ok], u[ok]]
+    return out
+
+
+@dataclass
+class _Candidates:
+    sample: np.ndarray  # (C,) index of the A sample
+    q: np.ndarray  # (C,) B skeleton pixel nearest the candidate's place in B
+    point: np.ndarray  # (C, 3)
+    radius: np.ndarray  # (C,) mm
+    unary: np.ndarray  # (C,)
+    scale_a: np.ndarray  # (C,) mm per px of A at the point
+
+
+def _line_runs(b: ViewData, start_uv: np.ndarray, end_uv: np.ndarray, step_px: float) -> tuple[np.ndarray, ...]:
+    """The runs of B's mask along each segment ``start -> end`` (one per A sample):
+    ``(sample, t_in, t_out)`` in px from ``start`` (sub-pixel edges of the bilinear mask)."""
+    rows, cols = b.mask.shape
+    box_lo, box_hi = b.box_uv
+    direction = end_uv - start_uv
+    length = np.linalg.norm(direction, axis=1)
+    direction = direction / np.maximum(length, 1e-12)[:, None]
+    # clip each segment to the box around the mask (slab method)
+    t0, t1 = np.zeros(len(start_uv)), length.copy()
+    for axis in range(2):
+        d = direction[:, axis]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a = (box_lo[axis] - start_uv[:, axis]) / d
+            c = (box_hi[axis] - start_uv[:, axis]) / d
+        lo, hi = np.minimum(a, c), np.maximum(a, c)
+        flat = np.abs(d) < 1e-12
+        inside = (start_uv[:, axis] >= box_lo[axis]) & (start_uv[:, axis] <= box_hi[axis])
+        lo = np.where(flat, np.where(inside, -np.inf, np.inf), lo)
+        hi = np.where(flat, np.where(inside, np.inf, -np.inf), hi)
+        t0, t1 = np.maximum(t0, lo), np.minimum(t1, hi)
+    samples, t_in, t_out = [], [], []
+    span = np.maximum(t1 - t0, 0.0)
+    count = np.ceil(span / step_px).astype(np.int64) + 1
+    order = np.argsort(count)
+    chunk = max(1, 2_000_000 // max(1, int(count.max())))
+    for lo_i in range(0, len(order), chunk):
+        idx = order[lo_i:lo_i + chunk]
+        idx = idx[span[idx] > 0]
+        if len(idx) == 0:
+            continue
+        n = int(count[idx].max())
+        t = t0[idx, None] + step_px * np.arange(n)[None, :]
+        valid = t <= t1[idx, None] + 1e-9
+        u = start_uv[idx, 0, None] + t * direction[idx, 0, None]
+        v = start_uv[idx, 1, None] + t * direction[idx, 1, None]
+        value = ndi.map_coordinates(b.image, [v.ravel(), u.ravel()], order=1, mode="constant", cval=0.0).reshape(t.shape)
+        value = np.where(valid, value, 0.0)
+        inside = np.pad(value >= 0.5, ((0, 0), (1, 1)))
+        change = np.diff(inside.astype(np.int8), axis=1)
+        r_in, c_in = np.nonzero(change == 1)  # first inside sample of a run is c_in
+        r_out, c_out = np.nonzero(change == -1)  # last inside sample is c_out - 1
+        padded = np.pad(value, ((0, 0), (1, 1)))
+        # sub-pixel edges: where the bilinear value crosses 0.5 between the samples
+        before, first = padded[r_in, c_in], padded[r_in, c_in + 1]
+        enter = (c_in - 1) + (0.5 - before) / np.maximum(first - before, 1e-9)
+        last, after = padded[r_out, c_out], padded[r_out, c_out + 1]
+        leave = (c_out - 1) + (last - 0.5) / np.maximum(last - after, 1e-9)
+        tt = t[:, :1]
+        samples.append(idx[r_in])
+        t_in.append(tt[r_in, 0] + step_px * enter)
+        t_out.append(tt[r_out, 0] + step_px * leave)
+    if not samples:
+        empty = np.zeros(0)
+        return empty.astype(np.int64), empty, empty, direction
+    return np.concatenate(samples), np.concatenate(t_in), np.concatenate(t_out), direction
+
+
+def _candidates(a: ViewData, b: ViewData, others: Sequence[ViewData], samples: np.ndarray,
+                settings: MatchSettings) -> _Candidates:
+    ga, gb = a.graph, b.graph
+    dirs_a = ray_directions(a.projection, ga.uv_px[samples])
+    centre_a = a.projection.camera_centre_mm
+    reach = np.linalg.norm(centre_a)
+    near = centre_a + (reach - settings.depth_range_mm) * dirs_a
+    far = centre_a + (reach + settings.depth_range_mm) * dirs_a
+    start_uv, end_uv = b.projection.project(near), b.projection.project(far)
+    sample_of, t_in, t_out, direction = _line_runs(b, start_uv, end_uv, settings.line_step_px)
+    run_px = t_out - t_in
+    middle = 0.5 * (t_in + t_out)
+    q_uv = start_uv[sample_of] + middle[:, None] * direction[sample_of]
+    half_b = np.maximum(_bilinear(b.inside_px, q_uv) - 0.5, 0.5)
+    # a run much longer than the vessel is wide runs along the line: split it in pieces a width long
+    pieces = np.clip(np.rint(run_px / (2.0 * half_b + 1.0)), 1, settings.max_pieces).astype(np.int64)
+    owner = np.repeat(np.arange(len(run_px)), pieces)
+    first = np.concatenate([[0], np.cumsum(pieces)[:-1]])
+    k = np.arange(len(owner)) - first[owner]
+    t_mid = t_in[owner] + (k + 0.5) / pieces[owner] * run_px[owner]
+    sample_of = sample_of[owner]
+    q_uv = start_uv[sample_of] + t_mid[:, None] * direction[sample_of]
+    half_b = np.maximum(_bilinear(b.inside_px, q_uv) - 0.5, 0.5)
+    dirs_b = ray_directions(b.projection, q_uv)
+    point = triangulate_midpoint(centre_a, dirs_a[sample_of], b.projection.camera_centre_mm, dirs_b)
+    scale_a = a.projection.depth_mm(point) / a.focal_px
+    scale_b = b.projection.depth_mm(point) / b.focal_px
+    ra = ga.half_width_px[samples[sample_of]] * scale_a
+    rb = half_b * scale_b
+    sigma = settings.radius_sigma_px * np.maximum(scale_a, scale_b) + settings.radius_sigma_rel * np.maximum(ra, rb)
+    unary = np.minimum(((ra - rb) / sigma) ** 2, settings.radius_cap)
+    valid = a.projection.in_front(point) & b.projection.in_front(point)
+    for other in others:
+        uv = other.projection.project(point)
+        valid &= _sample(other.outside_px, uv, np.inf) <= settings.mask_px
+        off_skeleton = _sample(other.skeleton_px, uv, np.inf)
+        unary += np.minimum((off_skeleton / settings.other_skeleton_px) ** 2, settings.cap)
+    q = _sample(b.nearest_skeleton, q_uv, -1).astype(np.int64)
+    valid &= q >= 0
+    radius = 0.5 * (ra + rb)
+    cands = _Candidates(sample_of[valid], q[valid], point[valid], radius[valid], unary[valid], scale_a[valid])
+    # at most max_candidates per sample, cheapest first
+    order = np.lexsort((cands.unary, cands.sample))
+    rank = np.arange(len(order)) - np.searchsorted(cands.sample[order], cands.sample[order], side="left")
+    keep = order[rank < settings.max_candidates]  # by sample, cheapest first
+    return _Candidates(*(getattr(cands, f)[keep] for f in ("sample", "q", "point", "radius", "unary", "scale_a")))
+
+
+def _claimed(a: ViewData, samples: np.ndarray, cands: _Candidates, claims: np.ndarray,
+             settings: MatchSettings) -> np.ndarray:
+    """(C,) bool: B's own matching put the 3D point of the candidate's B pixel elsewhere along A
+    (farther than ``claim_px`` plus the half-width from the candidate's pixel in A)."""
+    claimed = claims[cands.q]
+    has = np.isfinite(claimed[:, 0])
+    out = np.zeros(len(cands.q), dtype=bool)
+    where = a.projection.project(claimed[has])
+    pixel = samples[cands.sample[has]]
+    out[has] = np.linalg.norm(where - a.graph.uv_px[pixel], axis=1) > settings.claim_px + a.graph.half_width_px[pixel]
+    return out
+
+
+def _bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    return ndi.map_coordinates(image, [uv[:, 1], uv[:, 0]], order=1, mode="nearest")
+
+
+def match_chains(a: ViewData, b: ViewData, others: Sequence[ViewData] = (),
+                 settings: MatchSettings = MATCH_SETTINGS, claims: np.ndarray | None = None,
+                 cache: dict | None = None) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """Match every chain of view ``a`` into view ``b`` (module notes).
+
+    Returns
+    -------
+    pixels : list of (L,) arrays
+        Per chain of A (those long enough), A's pixel indices along it.
+    points : list of (L, 3) arrays
+        The matched 3D point of each pixel (nan where the pixel is left unmatched).
+    radii : list of (L,) arrays
+        The radius the two views show there, mm (nan where unmatched).
+    """
+    ga, gb = a.graph, b.graph
+    chains = [c for c in ga.chains if len(c) >= settings.min_chain_px]
+    if not chains or gb.n_pixels == 0:
+        return [], [], []
+    lengths = np.array([len(c) for c in chains])
+    samples = np.concatenate(chains)
+    chain_start = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    if cache is not None and "candidates" in cache:
+        cands = cache["candidates"]
+    else:
+        cands = _candidates(a, b, others, samples, settings)
+        if cache is not None:
+            cache["candidates"] = cands
+    cost_of = cands.unary
+    if claims is not None:
+        cost_of = cost_of + settings.claim_cost * _claimed(a, samples, cands, claims, settings)
+    n_e, n_l, n_c = len(chains), int(lengths.max()), settings.max_candidates
+    # padded arrays (E, L, C): the candidates of each chain position
+    slot = np.arange(len(cands.sample)) - np.searchsorted(cands.sample, cands.sample, side="left")
+    e_of_sample = np.repeat(np.arange(n_e), lengths)
+    i_of_sample = np.arange(len(samples)) - chain_start[e_of_sample]
+    e, i = e_of_sample[cands.sample], i_of_sample[cands.sample]
+    unary = np.full((n_e, n_l, n_c), np.inf)
+    unary[e, i, slot] = cost_of
+    point = np.zeros((n_e, n_l, n_c, 3))
+    point[e, i, slot] = cands.point
+    radius = np.full((n_e, n_l, n_c), np.nan)
+    radius[e, i, slot] = cands.radius
+    chain_b = np.full((n_e, n_l, n_c), -1, dtype=np.int64)
+    chain_b[e, i, slot] = gb.chain_of[cands.q]
+    tangent_b = np.zeros((n_e, n_l, n_c, 2))
+    tangent_b[e, i, slot] = gb.tangent[cands.q]
+    scale = np.zeros((n_e, n_l, n_c))
+    scale[e, i, slot] = cands.scale_a
+    uv_a = np.zeros((n_e, n_l, 2))
+    uv_a[e_of_sample, i_of_sample] = ga.uv_px[samples]
+
+    s = settings
+    gap = n_c  # index of the no-match state
+    cost = np.concatenate([unary[:, 0], np.full((n_e, 1), s.gap_cost)], axis=1)  # (E, C+1)
+    back = np.zeros((n_e, n_l, n_c + 1), dtype=np.int64)
+    for k in range(1, n_l):
+        active = k < lengths  # (E,)
+        step_px = np.linalg.norm(uv_a[:, k] - uv_a[:, k - 1], axis=1)  # (E,)
+        jump = np.linalg.norm(point[:, k - 1, :, None, :] - point[:, k, None, :, :], axis=3)  # (E, C, C)
+        ds = np.maximum(step_px[:, None, None] * scale[:, k - 1, :, None], 1e-6)
+        trans = s.jump_weight * np.maximum(jump / ds - s.max_stretch, 0.0)
+        switch = chain_b[:, k - 1, :, None] != chain_b[:, k, None, :]
+        cos = np.abs(np.einsum("eai,ebi->eab", tangent_b[:, k - 1], tangent_b[:, k]))
+        trans = trans + np.where(switch, s.switch_cost + s.turn_weight * (1.0 - cos), 0.0)
+        full = np.empty((n_e, n_c + 1, n_c + 1))
+        full[:, :n_c, :n_c] = trans
+        full[:, :n_c, gap] = s.gap_switch_cost
+        full[:, gap, :n_c] = s.gap_switch_cost
+        full[:, gap, gap] = 0.0
+        total = cost[:, :, None] + full  # (E, from, to)
+        best_from = np.argmin(total, axis=1)
+        best = np.take_along_axis(total, best_from[:, None, :], axis=1)[:, 0]
+        node = np.concatenate([unary[:, k], np.full((n_e, 1), s.gap_cost)], axis=1)
+        new = best + node
+        back[:, k] = best_from
+        cost = np.where(active[:, None], new, cost)
+    # backtrack
+    pixels, points, radii = [], [], []
+    state = np.argmin(cost, axis=1)
+    choice = np.zeros((n_e, n_l), dtype=np.int64)
+    for k in range(n_l - 1, -1, -1):
+        active = k < lengths
+        choice[active, k] = state[active]
+        if k > 0:
+            state = np.where(active, back[np.arange(n_e), k, state], state)
+    for c in range(n_e):
+        length = lengths[c]
+        ch = choice[c, :length]
+        matched = ch < gap
+        pts = np.full((length, 3), np.nan)
+        rad = np.full(length, np.nan)
+        idx = np.flatnonzero(matched)
+        pts[idx] = point[c, idx, ch[idx]]
+        rad[idx] = radius[c, idx, ch[idx]]
+        pixels.append(chains[c])
+        points.append(pts)
+        radii.append(rad)
+    return pixels, points, radii

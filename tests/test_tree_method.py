@@ -1,0 +1,186 @@
+"""The tree method (reconstruction.model): 2D centerline graphs, epipolar correspondences, tubes.
+
+Tiny named cases with analytic truth, two clinical views (RAO 30 CAU 25, LAO 45 CRA 20) of exact
+silhouettes. The bars are what the method reaches today (docs/results/tree-method.md); where the
+visual hull fails (vessels that cross in one view) the test says so against the refined hull.
+"""
+
+import numpy as np
+import pytest
+
+from angiohull.errors import ReconstructionError
+from angiohull.geometry import CArmGeometry, parse_clinical_angles
+from angiohull.metrics.tree import distance_to_centerline, tree_scores
+from angiohull.reconstruction import Lattice, reconstruct
+from angiohull.reconstruction.model import centerline_graph, lattice_points_in_tubes
+from angiohull.reconstruction.model.matching import triangulate_midpoint
+from angiohull.synthetic import Tube, TubePhantom
+from angiohull.tree import Branch, VesselTree
+
+TWO = ("RAO 30 CAU 25", "LAO 45 CRA 20")
+
+
+def _views():
+    return [CArmGeometry(*parse_clinical_angles(v), 1200.0, 800.0, (0.35, 0.35), (512, 512)).projection() for v in TWO]
+
+
+def _line(a, b, step=0.5):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return np.linspace(a, b, int(np.ceil(np.linalg.norm(b - a) / step)) + 1)
+
+
+def _masks(truth, projections):
+    phantom = TubePhantom(tuple(Tube(b.points_mm, b.radius_mm) for b in truth.branches), "truth")
+    return [phantom.silhouette(p) for p in projections]
+
+
+# -- 2D graphs, triangulation, tubes --------------------------------------------------------------
+def _disk_line(shape, a, b, radius):
+    rows, cols = np.mgrid[:shape[0], :shape[1]]
+    p = np.stack([cols, rows], axis=-1).astype(float)
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    t = np.clip(((p - a) @ (b - a)) / ((b - a) @ (b - a)), 0, 1)
+    return np.linalg.norm(p - a - t[..., None] * (b - a), axis=-1) <= radius
+
+
+def test_the_2d_graph_of_a_y_has_three_chains_meeting_at_one_junction_with_their_half_widths():
+    mask = (_disk_line((120, 160), (10, 60), (80, 60), 4.0) | _disk_line((120, 160), (80, 60), (150, 15), 3.0)
+            | _disk_line((120, 160), (80, 60), (150, 105), 3.0))
+    graph = centerline_graph(mask)
+    long = [c for e, c in enumerate(graph.chains) if graph.chain_length_px(e) > 20]
+    assert len(long) == 3
+    tips = np.flatnonzero(graph.degree == 1)
+    assert len(tips) == 3  # the thinning's spurs at the ends are gone
+    # half-widths: 4 px on the trunk, 3 px on the daughters (pixel-centre masks: within 0.6 px)
+    for chain in long:
+        inner = chain[len(chain) // 4: 3 * len(chain) // 4]
+        expected = 4.0 if graph.uv_px[inner, 0].mean() < 80 else 3.0
+        assert abs(np.median(graph.half_width_px[inner]) - expected) <= 0.6
+
+
+def test_a_diagonal_staircase_is_one_chain_not_a_string_of_junctions():
+    mask = _disk_line((100, 100), (10, 15), (90, 70), 2.0)
+    graph = centerline_graph(mask)
+    assert len(graph.chains) == 1
+    assert np.count_nonzero(graph.degree >= 3) == 0
+
+
+def test_midpoint_triangulation_of_two_rays_through_a_point_gives_the_point():
+    point = np.array([[3.0, -2.0, 5.0]])
+    ca, cb = np.array([0.0, -800.0, 0.0]), np.array([800.0, 0.0, 100.0])
+    da, db = point - ca, point - cb
+    da /= np.linalg.norm(da)
+    db /= np.linalg.norm(db)
+    assert np.allclose(triangulate_midpoint(ca, da, cb, db), point, atol=1e-9)
+    # skew rays: x-axis at z = 0 and y-axis at z = 2 -> midpoint (0, 0, 1)
+    out = triangulate_midpoint(np.array([0.0, 0, 0]), np.array([[1.0, 0, 0]]), np.array([0.0, 0, 2]),
+                               np.array([[0.0, 1, 0]]))
+    assert np.allclose(out, [[0, 0, 1]])
+
+
+def test_lattice_points_in_a_capsule_match_the_distance_formula():
+    lattice = Lattice(20.0, 81)  # 0.5 mm
+    a, b, r = np.array([[-6.0, -3.0, 1.0]]), np.array([[7.0, 4.0, -2.0]]), 1.7
+    got = lattice_points_in_tubes(a, b, np.array([r]), np.array([r]), lattice)
+    points = lattice.points()
+    ab = b[0] - a[0]
+    t = np.clip((points - a[0]) @ ab / (ab @ ab), 0, 1)
+    distance = np.linalg.norm(points - a[0] - t[:, None] * ab, axis=1)
+    inside = {tuple(p) for p in np.round(points[distance <= r - 0.02], 6)}
+    outside = {tuple(p) for p in np.round(points[distance > r], 6)}
+    got = {tuple(p) for p in np.round(got, 6)}
+    assert inside <= got and not (got & outside)
+
+
+# -- named cases -------------------------------------------------------------------------------
+def _helix():
+    t = np.linspace(0, 3 * np.pi, 300)
+    points = np.column_stack([12 * np.cos(t), 12 * np.sin(t), np.linspace(-25, 25, len(t))])
+    return VesselTree((Branch(points, 1.3, name="helix"),))
+
+
+def _y():
+    trunk, first, second = _line((-30, 0, 0), (0, 0, 0)), _line((0, 0, 0), (25, 15, 5)), _line((0, 0, 0), (20, -20, -5))
+    main = Branch(np.vstack([trunk, first[1:]]),
+                  np.concatenate([np.full(len(trunk), 2.0), np.full(len(first) - 1, 1.4)]), name="trunk")
+    return VesselTree((main, Branch(second, 1.1, parent=0, parent_point=len(trunk) - 1, name="second")))
+
+
+def _crossing():
+    """A side branch that leaves the trunk and crosses it in the first view (not in the second)."""
+    trunk = _line((-30, -10, 0), (30, 10, 0))
+    side = _line(trunk[10], trunk[10] + np.array([35.0, -5.0, 25.0]))
+    return VesselTree((Branch(trunk, 1.5, name="trunk"), Branch(side, 1.1, parent=0, parent_point=10, name="side")))
+
+
+def _foreshortened(projections):
+    """A bend whose middle 15 mm run along the first view's central ray."""
+    d = projections[0].camera_centre_mm / np.linalg.norm(projections[0].camera_centre_mm)
+    a = np.array([-30.0, 0, 0])
+    b = a + np.array([20.0, 5, 0])
+    c = b + 15 * d
+    e = c + np.array([20.0, -5, 5])
+    return VesselTree((Branch(np.vstack([_line(a, b), _line(b, c)[1:], _line(c, e)[1:]]), 1.4, name="bent"),))
+
+
+def _scores(truth, method="tree", preset="paper"):
+    projections = _views()
+    result = reconstruct(projections, _masks(truth, projections), method=method, preset=preset, centerlines=False)
+    assert result.tree is not None
+    return result, tree_scores(result.tree, truth).as_dict()
+
+
+def test_a_helix_from_two_views_comes_back_along_its_axis_with_its_radius():
+    result, s = _scores(_helix())
+    assert result.method == "tree"
+    assert s["ot1mm"] >= 0.9 and s["branch_recall"] == 1.0
+    assert s["radius_mae_mm"] <= 0.1
+    points, radius, _ = result.tree.points()
+    distance, _, _, _ = distance_to_centerline(points, _helix())
+    assert np.median(distance) < 0.5
+
+
+def test_a_y_from_two_views_gives_both_branches_and_the_bifurcation_within_a_millimetre():
+    _, s = _scores(_y())
+    assert s["branch_recall"] == 1.0 and s["ot1mm"] >= 0.95
+    assert s["bifurcations_matched"] == 1 and s["bifurcation_error_mm"] < 1.0
+
+
+def test_vessels_that_cross_in_one_view_keep_their_course_where_the_hull_fails():
+    _, tree = _scores(_crossing())
+    _, hull = _scores(_crossing(), method="hull", preset="refined")
+    assert tree["branch_recall"] == 1.0 and tree["ot1mm"] >= 0.85
+    assert tree["centerline_mean_mm"] < 0.5 * hull["centerline_mean_mm"]  # measured: 1.06 mm against 5.59 mm
+
+
+def test_a_segment_foreshortened_in_one_view_is_rebuilt_from_the_other():
+    _, s = _scores(_foreshortened(_views()))
+    assert s["centerline_mean_mm"] <= 0.5 and s["branch_recall"] == 1.0 and s["radius_mae_mm"] <= 0.1
+
+
+@pytest.mark.xfail(strict=True, reason="known limit (docs/tree-method.md): where the vessel has left one image, the "
+                   "other's pixels find no partner and the end bends away; measured 75 % of the seen axis within 1 mm")
+def test_a_vessel_that_leaves_the_image_is_rebuilt_as_far_as_both_views_see_it():
+    projections = _views()
+    truth = VesselTree((Branch(_line((-20, 0, -10), (110, 10, 20)), 1.4, name="long"),))
+    masks = _masks(truth, projections)
+    result = reconstruct(projections, masks, method="tree", centerlines=False)
+    # the part of the true axis inside both images, more than 3 mm from where it leaves
+    axis = truth.root.points_mm
+    seen = np.ones(len(axis), dtype=bool)
+    for p in projections:
+        uv = p.project(axis)
+        seen &= np.all((uv >= 3 / 0.2) & (uv <= 511 - 3 / 0.2), axis=1)
+    distance, _, _, _ = distance_to_centerline(axis[seen], result.tree)
+    assert seen.sum() > 50 and np.mean(distance < 1.0) >= 0.9
+
+
+def test_the_tree_method_refuses_one_view_and_hull_only_options():
+    projections = _views()
+    masks = _masks(_y(), projections)
+    with pytest.raises(ReconstructionError, match="two views or more"):
+        reconstruct(projections[:1], masks[:1], method="tree")
+    with pytest.raises(ReconstructionError, match="preset 'refined' applies to method 'hull' only"):
+        reconstruct(projections, masks, method="tree", preset="refined")
+    with pytest.raises(ReconstructionError, match="unknown method 'model'"):
+        reconstruct(projections, masks, method="model")
