@@ -6,16 +6,21 @@ views' 2D centerlines and widths say where the vessels are. Steps:
 
 1. **2D centerline graphs** (:mod:`.graph2d`): each mask is thinned, its skeleton traced into
    chains between ends and junctions, thinning spurs removed, a half-width per pixel.
-2. **Correspondence** (:mod:`.matching`): each view's chains are matched into a partner view (with
-   two views, each into the other; with more, each into the view most nearly perpendicular to it,
-   every candidate checked against the remaining views' masks and skeletons) by a dynamic
-   programme along each chain over the epipolar candidates, which weighs distance to the epipolar
-   line, the radius the two views show at that depth, 3D continuity and turns onto crossing
-   vessels.
-3. **Tubes**: the matched points, with the radius both views show, joined along their chains,
-   give a union of tubes on the lattice of the cube of interest.
+2. **Correspondence** (:mod:`.matching`): each view's skeleton pixels are matched into a partner
+   view (with two views, each into the other; with more, each into the view most nearly
+   perpendicular to it, every candidate checked against the remaining views' masks and
+   skeletons): candidates where the epipolar line crosses the partner's mask, costs for the radius
+   the two views show at that depth, 3D continuity and turns onto crossing vessels, minimised
+   exactly over the pixel graph. Then ``claim_rounds`` more rounds, in which a candidate whose
+   partner pixel the reverse matching placed elsewhere costs more.
+3. **Tubes**: each matched pixel, with the radius both views show, is a ball, joined by a tube
+   to its matched neighbour; their lattice points form a volume.
 4. **Tree and fit**: that volume's vessel tree (:func:`..vessel_tree.hull_tree`: skeleton, graph,
-   then centres and radii fitted to every view's mask, ends moved to the masks' ends).
+   pieces joined through the visual hull, then centres and radii fitted to every view's mask,
+   ends moved to the masks' ends). Leaf branches that the rest of the tree covers (projected
+   tubes) over ``explained_share`` of their points in every view are removed, one at a time, the
+   most covered first: they add nothing any view shows (a phantom where two vessels' cones
+   cross), while a branch with pixels nothing else explains in some view stays.
 5. **Lumen points**: the lattice points inside the fitted tree's tubes.
 
 Arrays and projections in, points and a tree out; nothing here reads files.
@@ -32,11 +37,11 @@ from scipy import ndimage as ndi
 
 from ...errors import ReconstructionError
 from ...geometry import Projection
-from ...tree import VesselTree
+from ...tree import Branch, VesselTree
 from ..cube import Lattice
 from ..vessel_tree import TREE_SETTINGS, TreeBuild, TreeSettings, hull_tree
 from .graph2d import CenterlineGraph2D, centerline_graph
-from .matching import MATCH_SETTINGS, MatchSettings, ViewData, match_chains
+from .matching import MATCH_SETTINGS, MatchSettings, ViewData, match_pixels
 from .tubes import lattice_points_in_tubes
 
 __all__ = ["ModelSettings", "MODEL_SETTINGS", "ModelBuild", "model_tree", "centerline_graph", "CenterlineGraph2D",
@@ -51,6 +56,7 @@ class ModelSettings:
     tree: TreeSettings = field(default_factory=lambda: TREE_SETTINGS)
     max_segment_mm: float = 2.0  # matched neighbours farther apart than this are not joined by a tube
     lumen_margin_mm: float = 0.0  # lumen points: lattice points within this of the fitted tubes
+    explained_share: float = 0.9  # a leaf branch this much of which the others cover in every view goes
     claim_rounds: int = 2  # matchings again with each view's pixels claimed by the other's matching
 
 
@@ -64,6 +70,7 @@ class ModelBuild:
     pairs: tuple[tuple[int, int], ...]  # (view, partner) pairs matched
     matched_share: tuple[float, ...]  # per pair: share of the chain pixels given a match
     skeleton_pixels: tuple[int, ...]  # per view
+    explained_removed: int  # leaf branches removed because the rest of the tree covers them in every view
     tree_build: TreeBuild
     timings_s: dict[str, float]
 
@@ -100,23 +107,55 @@ def _view_data(projection: Projection, mask: np.ndarray) -> ViewData:
                     skeleton_px=skeleton_px, focal_px=float(max(projection.focal_lengths_px)))
 
 
-def _tubes(points: list[np.ndarray], radii: list[np.ndarray], max_segment_mm: float):
-    starts, ends, r0, r1 = [], [], [], []
-    for pts, rad in zip(points, radii):
-        ok = np.isfinite(rad)
-        if not ok.any():
+def _without(tree: VesselTree, leaf: int) -> VesselTree:
+    """The tree without leaf branch ``leaf`` (indices after it shift down by one)."""
+    branches = []
+    for i, b in enumerate(tree.branches):
+        if i == leaf:
             continue
-        # neighbours both matched and close: a tube; every matched point: a ball
-        both = ok[:-1] & ok[1:]
-        if len(pts) > 1 and both.any():
-            a, b = pts[:-1][both], pts[1:][both]
-            near = np.linalg.norm(b - a, axis=1) <= max_segment_mm
-            starts.append(a[near]), ends.append(b[near])
-            r0.append(rad[:-1][both][near]), r1.append(rad[1:][both][near])
-        starts.append(pts[ok]), ends.append(pts[ok]), r0.append(rad[ok]), r1.append(rad[ok])
-    if not starts:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0)
-    return np.concatenate(starts), np.concatenate(ends), np.concatenate(r0), np.concatenate(r1)
+        parent = b.parent if b.parent is None or b.parent < leaf else b.parent - 1
+        branches.append(Branch(b.points_mm, b.radius_mm, parent, b.parent_point, b.name))
+    return VesselTree(tuple(branches))
+
+
+def explained_shares(tree: VesselTree, projections: Sequence[Projection]) -> np.ndarray:
+    """(B, V): per branch and view, the share of the branch's points whose projection lies inside
+    the projected tube (disc of the projected radius) of a point of another branch."""
+    from scipy.spatial import cKDTree
+
+    points, radius, owner = tree.points()
+    out = np.zeros((tree.n_branches, len(projections)))
+    for v, projection in enumerate(projections):
+        uv = projection.project(points)
+        rho = radius * max(projection.focal_lengths_px) / projection.depth_mm(points)
+        index = cKDTree(uv)
+        near = index.query_ball_point(uv, r=float(rho.max()) + 0.5)
+        covered = np.zeros(len(points), dtype=bool)
+        for i, js in enumerate(near):
+            js = np.asarray(js, dtype=np.int64)
+            js = js[owner[js] != owner[i]]
+            if len(js):
+                covered[i] = np.any(np.linalg.norm(uv[js] - uv[i], axis=1) <= rho[js] + 0.5)
+        out[:, v] = np.bincount(owner, weights=covered, minlength=tree.n_branches) / np.bincount(owner, minlength=tree.n_branches)
+    return out
+
+
+def prune_explained_leaves(tree: VesselTree, projections: Sequence[Projection],
+                           share: float) -> tuple[VesselTree, int]:
+    """Remove, one at a time (the most covered first), leaf branches whose points the rest of the
+    tree covers over ``share`` in every view: such a branch adds nothing that any view shows (a
+    phantom where two vessels' cones cross); a branch with pixels no other explains in some view
+    stays. Returns the tree and how many branches went."""
+    removed = 0
+    while tree.n_branches > 1:
+        shares = explained_shares(tree, projections).min(axis=1)
+        leaves = [i for i in range(1, tree.n_branches) if not tree.children(i)]
+        candidates = [i for i in leaves if shares[i] > share]
+        if not candidates:
+            break
+        tree = _without(tree, max(candidates, key=lambda i: shares[i]))
+        removed += 1
+    return tree, removed
 
 
 def tree_lumen_points(tree: VesselTree, lattice: Lattice, margin_mm: float = 0.0) -> np.ndarray:
@@ -179,25 +218,28 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         previous, results = results, {}
         for a, b in pairs:
             others = [views[k] for k in range(len(views)) if k not in (a, b)]
-            claims = None
-            if (b, a) in previous:
-                # B's 3D point per skeleton pixel, from B's own matching into A
-                pixels, points, _ = previous[(b, a)]
-                claims = np.full((views[b].graph.n_pixels, 3), np.nan)
-                claims[np.concatenate(pixels)] = np.concatenate(points)
-            results[(a, b)] = match_chains(views[a], views[b], others, settings.match, claims, caches[(a, b)])
-    all_points, all_radii, shares = [], [], []
+            # from the second round: B's 3D point per skeleton pixel, from B's own matching into A
+            claims = previous[(b, a)][0] if (b, a) in previous else None
+            results[(a, b)] = match_pixels(views[a], views[b], others, settings.match, claims, caches[(a, b)])
+    starts, ends, r0, r1, shares = [], [], [], [], []
     for a, b in pairs:
-        _, points, radii = results[(a, b)]
-        all_points += points
-        all_radii += radii
-        total = sum(len(r) for r in radii)
-        shares.append(sum(int(np.isfinite(r).sum()) for r in radii) / total if total else 0.0)
+        points, radii, parent = results[(a, b)]
+        shares.append(float(np.isfinite(radii).mean()) if len(radii) else 0.0)
+        # a tube from each matched pixel to its matched neighbour in the forest, a ball at each
+        child = np.flatnonzero((parent >= 0) & np.isfinite(radii))
+        child = child[np.isfinite(radii[parent[child]])]
+        near = np.linalg.norm(points[child] - points[parent[child]], axis=1) <= settings.max_segment_mm
+        child = child[near]
+        ok = np.flatnonzero(np.isfinite(radii))
+        starts += [points[child], points[ok]]
+        ends += [points[parent[child]], points[ok]]
+        r0 += [radii[child], radii[ok]]
+        r1 += [radii[parent[child]], radii[ok]]
     timings["correspondence"] = time.perf_counter() - start
     say("correspondence: " + ", ".join(f"view {a} -> {b}: {s:.0%} matched" for (a, b), s in zip(pairs, shares)))
 
     start = time.perf_counter()
-    a, b, r0, r1 = _tubes(all_points, all_radii, settings.max_segment_mm)
+    a, b, r0, r1 = (np.concatenate(x) for x in (starts, ends, r0, r1))
     if len(a) == 0:
         raise ReconstructionError("the tree method found no correspondence between the views' centerlines; "
                                   "check the calibration and that the masks show the same vessels")
@@ -209,13 +251,15 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     start = time.perf_counter()
     tree, tree_build = hull_tree(initial, lattice, projections, [v.mask for v in views],
                                  support_points_mm=support_points_mm, settings=settings.tree)
+    tree, pruned = prune_explained_leaves(tree, projections, settings.explained_share)
     timings["tree"] = time.perf_counter() - start
-    say(f"tree: {tree.n_branches} branches, fitted to the views")
+    say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed)")
 
     start = time.perf_counter()
     lumen = tree_lumen_points(tree, lattice, settings.lumen_margin_mm)
     timings["lumen"] = time.perf_counter() - start
     build = ModelBuild(pairs=tuple(pairs), matched_share=tuple(shares),
-                       skeleton_pixels=tuple(v.graph.n_pixels for v in views), tree_build=tree_build,
+                       skeleton_pixels=tuple(v.graph.n_pixels for v in views), explained_removed=pruned,
+                       tree_build=tree_build,
                        timings_s=timings)
     return lumen, tree, build

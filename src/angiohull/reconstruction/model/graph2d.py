@@ -41,10 +41,41 @@ class CenterlineGraph2D:
     index_in_chain: np.ndarray  # (P,) its position along that chain
     chains: tuple[np.ndarray, ...]  # E arrays of pixel indices, ordered along the chain
     degree: np.ndarray  # (P,) neighbours of each pixel in the graph
+    neighbour_start: np.ndarray  # (P + 1,) the neighbours of pixel i are
+    neighbour_index: np.ndarray  # neighbour_index[neighbour_start[i]:neighbour_start[i + 1]]
 
     @property
     def n_pixels(self) -> int:
         return len(self.uv_px)
+
+    def neighbours(self, i: int) -> np.ndarray:
+        return self.neighbour_index[self.neighbour_start[i]:self.neighbour_start[i + 1]]
+
+    def spanning_forest(self) -> tuple[np.ndarray, list[np.ndarray]]:
+        """A breadth-first spanning forest of the pixel graph (cycles, where vessels cross or touch,
+        are cut): ``(parent (P,), -1 at each root; levels: pixel indices by depth, roots first)``."""
+        parent = np.full(self.n_pixels, -2, dtype=np.int64)
+        levels: list[np.ndarray] = []
+        for root in np.argsort(-self.half_width_px, kind="stable"):
+            if parent[root] != -2:
+                continue
+            parent[root] = -1
+            frontier = np.array([root], dtype=np.int64)
+            depth = 0
+            while len(frontier):
+                if depth >= len(levels):
+                    levels.append(frontier)
+                else:
+                    levels[depth] = np.concatenate([levels[depth], frontier])
+                nxt = []
+                for i in frontier:
+                    for j in self.neighbours(int(i)):
+                        if parent[j] == -2:
+                            parent[j] = i
+                            nxt.append(j)
+                frontier = np.array(nxt, dtype=np.int64)
+                depth += 1
+        return parent, levels
 
     def chain_length_px(self, e: int) -> float:
         uv = self.uv_px[self.chains[e]]
@@ -188,5 +219,8 @@ def centerline_graph(mask: np.ndarray, *, spur_widths: float = 2.0, spur_px: flo
         for p in np.flatnonzero(isolated):
             chain_of[p] = len(arrays)
             arrays.append(np.array([p], dtype=np.int64))
+    start = np.concatenate([[0], np.cumsum(degree)]).astype(np.int64)
+    flat = np.concatenate(neighbours).astype(np.int64) if len(neighbours) else np.zeros(0, dtype=np.int64)
     return CenterlineGraph2D(uv_px=uv, half_width_px=half_width, tangent=tangent, chain_of=chain_of,
-                             index_in_chain=index_in_chain, chains=tuple(arrays), degree=degree)
+                             index_in_chain=index_in_chain, chains=tuple(arrays), degree=degree,
+                             neighbour_start=start, neighbour_index=flat)

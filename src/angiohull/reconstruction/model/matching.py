@@ -1,34 +1,40 @@
-"""Correspondences of centerline pixels across views: epipolar candidates, then a dynamic programme
-along each chain of one view that chooses one candidate (or none) per pixel.
+"""Correspondences of centerline pixels across views: epipolar candidates from the other view's
+mask, then an exact min-sum choice of one candidate (or none) per pixel over the pixel graph.
 
-Notation: view A's chains are matched into view B. ``p`` is a skeleton pixel of A, ``q`` one of B.
+Notation: view A's skeleton pixels are matched into view B; ``p`` is a pixel of A.
 
-1. **Candidates.** Every 3D point seen at ``p`` lies on ``p``'s ray, and projects into B on the
-   epipolar line of ``p``. The candidates of ``p`` are the places where that line crosses B's
-   skeleton: B's skeleton pixels within ``line_px`` of the line, grouped into runs along B's chains
-   (a run per crossing), each run giving its pixel nearest the line; where a vessel of B runs
-   along the epipolar line the run is long and every ``long_step_px``-th pixel of it is a
-   candidate too (the depth is then undetermined by the line, and the neighbours decide). Each
-   candidate is triangulated (the midpoint of the shortest segment between the two rays).
-2. **Unary cost** of a candidate: its distance to the line (``(d / line_sigma_px)**2``), the
-   disagreement of the vessel radius the two views show at that depth (each view's half-width
-   times depth / focal length; ``(dr / sigma)**2`` with ``sigma = radius_sigma_px`` pixels at
-   the larger scale plus ``radius_sigma_rel`` of the radius), and with three or more views, for
-   every other view: the candidate is dropped when its projection lies farther than
-   ``mask_px`` from that view's mask (it is outside the visual hull), and costs
-   ``(d / other_skeleton_px)**2`` for its distance ``d`` to that view's skeleton. Each term is
-   capped at ``cap``.
-3. **Pairwise cost** between the candidates of neighbouring pixels ``p'`` and ``p`` of a chain:
-   a jump in 3D longer than ``max_stretch`` times the pixel step at that depth (a vessel can run
-   out of A's image plane, so its 3D step may exceed its projected step, but not by much) costs
-   ``jump_weight`` per unit of excess stretch; going over from one chain of B to another costs
-   ``switch_cost`` plus ``turn_weight * (1 - |cos|)`` of the angle between the two chains'
-   directions in B (straight on through a crossing in B is free, but turning onto a vessel that
-   crosses it there, the phantom that two views cannot rule out by the lines alone, bends).
-4. **No match**: a pixel may be left unmatched at ``gap_cost`` (its vessel is hidden or
-   foreshortened in B, or a false skeleton piece); entering or leaving costs ``gap_switch_cost``.
-5. The chains are solved together (padded arrays, one Viterbi step per position along the
-   chains), and each chain keeps its cheapest path.
+1. **Candidates.** Every 3D point seen at ``p`` lies on ``p``'s ray, which projects into B as the
+   epipolar line of ``p``. B's mask is sampled along that line (bilinear, every ``line_step_px``,
+   within ``depth_range_mm`` of the isocentre's depth along the ray); each run of vessel pixels
+   is a candidate at its middle. A run many vessel widths long (a vessel of B running along the
+   line) is split into pieces a width long (at most ``max_pieces``), each a candidate: there the
+   line does not fix the depth, and the neighbours decide. Mask runs, not B's skeleton, so that a
+   vessel foreshortened into a blob in B, or two vessels overlapping there, still give one. Each
+   candidate is triangulated (midpoint of the shortest segment between the two rays) and tagged
+   with B's skeleton pixel nearest to it (its chain and direction in B).
+2. **Unary cost**: the disagreement of the radius the two views show at that depth (half-width
+   times depth / focal length; ``((rA - rB) / sigma)**2`` with ``sigma = radius_sigma_px`` pixels
+   at the larger scale plus ``radius_sigma_rel`` of the radius, capped at ``radius_cap``). B's
+   half-width is taken at the candidate and at B's nearest skeleton pixel, and the one that agrees
+   better counts (the first is off the axis for a piece of a long run, the second widened by an
+   overlap or a junction nearby). With three or more views, for every other view: the candidate
+   is dropped when its projection lies farther than ``mask_px`` from that view's mask (outside the
+   visual hull), and costs ``(d / other_skeleton_px)**2`` (capped at ``cap``) for its distance
+   ``d`` to that view's skeleton. With ``claims`` (B's own matching into A, from an earlier
+   round), a candidate whose B pixel that matching put elsewhere along A (farther than
+   ``claim_px`` plus the half-width from ``p``) costs ``claim_cost`` more.
+3. **Pairwise cost** between the candidates of neighbouring pixels: a 3D step longer than
+   ``max_stretch`` times the pixel step at that depth (a vessel can run out of A's image plane,
+   not jump) costs ``jump_weight`` per unit of excess stretch; going over from one chain of B to
+   another costs ``switch_cost`` plus ``turn_weight * (1 - |cos|)`` of the angle between the two
+   chains' directions in B: straight on through a crossing in B is free, turning onto the vessel
+   that crosses there (the phantom the epipolar line alone cannot rule out) bends. Where A's
+   pixel is a junction, only ``switch_cost`` applies (a side branch leaves at an angle).
+4. **No match**: a pixel may stay unmatched at ``gap_cost`` (its vessel hidden or foreshortened in
+   B, or a false skeleton piece); entering or leaving that state costs ``gap_switch_cost``.
+5. **Solve**: the costs are minimised exactly over a breadth-first spanning forest of A's pixel
+   graph (cycles where vessels cross in A are cut): min-sum messages from the leaves to the
+   roots, level by level for all pixels of a level at once, then the choices back down.
 """
 
 from __future__ import annotations
@@ -43,7 +49,7 @@ from ...geometry import Projection
 from ..epipolar import ray_directions
 from .graph2d import CenterlineGraph2D
 
-__all__ = ["MatchSettings", "MATCH_SETTINGS", "ViewData", "match_chains", "triangulate_midpoint"]
+__all__ = ["MatchSettings", "MATCH_SETTINGS", "ViewData", "match_pixels", "triangulate_midpoint"]
 
 
 @dataclass(frozen=True)
@@ -66,7 +72,6 @@ class MatchSettings:
     turn_weight: float = 4.0
     gap_cost: float = 2.0
     gap_switch_cost: float = 2.0
-    min_chain_px: int = 3  # chains of A with fewer pixels are not matched
     claim_px: float = 2.0  # B's own match of q lies farther than this plus the half-width from p in A ...
     claim_cost: float = 1.5  # ... costs this
 
@@ -203,22 +208,33 @@ def _candidates(a: ViewData, b: ViewData, others: Sequence[ViewData], samples: n
     t_mid = t_in[owner] + (k + 0.5) / pieces[owner] * run_px[owner]
     sample_of = sample_of[owner]
     q_uv = start_uv[sample_of] + t_mid[:, None] * direction[sample_of]
-    half_b = np.maximum(_bilinear(b.inside_px, q_uv) - 0.5, 0.5)
+    q = _sample(b.nearest_skeleton, q_uv, -1).astype(np.int64)
+    # the vessel's half-width where the candidate lies: at B's nearest skeleton pixel (the run's
+    # middle, or a piece of a long run, need not lie on the vessel's axis)
+    # B's half-width there, two ways: at the candidate (the run's middle, or a piece of a long run,
+    # need not lie on the vessel's axis) and at B's nearest skeleton pixel (an overlap or a junction
+    # nearby widens it); the radius cost takes the one that agrees better with A's
+    half_run = np.maximum(_bilinear(b.inside_px, q_uv) - 0.5, 0.5)
+    half_skeleton = np.where(q >= 0, gb.half_width_px[np.maximum(q, 0)], 0.5)
     dirs_b = ray_directions(b.projection, q_uv)
     point = triangulate_midpoint(centre_a, dirs_a[sample_of], b.projection.camera_centre_mm, dirs_b)
     scale_a = a.projection.depth_mm(point) / a.focal_px
     scale_b = b.projection.depth_mm(point) / b.focal_px
     ra = ga.half_width_px[samples[sample_of]] * scale_a
-    rb = half_b * scale_b
-    sigma = settings.radius_sigma_px * np.maximum(scale_a, scale_b) + settings.radius_sigma_rel * np.maximum(ra, rb)
-    unary = np.minimum(((ra - rb) / sigma) ** 2, settings.radius_cap)
+    unary = np.full(len(point), np.inf)
+    rb = np.zeros(len(point))
+    for half_b in (half_run, half_skeleton):
+        r = half_b * scale_b
+        sigma = settings.radius_sigma_px * np.maximum(scale_a, scale_b) + settings.radius_sigma_rel * np.maximum(ra, r)
+        cost = np.minimum(((ra - r) / sigma) ** 2, settings.radius_cap)
+        better = cost < unary
+        unary[better], rb[better] = cost[better], r[better]
     valid = a.projection.in_front(point) & b.projection.in_front(point)
     for other in others:
         uv = other.projection.project(point)
         valid &= _sample(other.outside_px, uv, np.inf) <= settings.mask_px
         off_skeleton = _sample(other.skeleton_px, uv, np.inf)
         unary += np.minimum((off_skeleton / settings.other_skeleton_px) ** 2, settings.cap)
-    q = _sample(b.nearest_skeleton, q_uv, -1).astype(np.int64)
     valid &= q >= 0
     radius = 0.5 * (ra + rb)
     cands = _Candidates(sample_of[valid], q[valid], point[valid], radius[valid], unary[valid], scale_a[valid])
@@ -246,101 +262,89 @@ def _bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return ndi.map_coordinates(image, [uv[:, 1], uv[:, 0]], order=1, mode="nearest")
 
 
-def match_chains(a: ViewData, b: ViewData, others: Sequence[ViewData] = (),
-                 settings: MatchSettings = MATCH_SETTINGS, claims: np.ndarray | None = None,
-                 cache: dict | None = None) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
-    """Match every chain of view ``a`` into view ``b`` (module notes).
+def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), settings: MatchSettings = MATCH_SETTINGS,
+                 claims: np.ndarray | None = None, cache: dict | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Match every skeleton pixel of view ``a`` into view ``b`` at once: the costs of the module
+    notes, minimised exactly over a spanning forest of A's pixel graph (min-sum messages from the
+    leaves to the roots, then the choices back down), so that the choices along one vessel, through
+    A's junctions, hang together.
 
     Returns
     -------
-    pixels : list of (L,) arrays
-        Per chain of A (those long enough), A's pixel indices along it.
-    points : list of (L, 3) arrays
-        The matched 3D point of each pixel (nan where the pixel is left unmatched).
-    radii : list of (L,) arrays
+    points : (P, 3) array
+        The matched 3D point of each pixel of A (nan where left unmatched).
+    radii : (P,) array
         The radius the two views show there, mm (nan where unmatched).
+    parent : (P,) array
+        Each pixel's neighbour towards its root in the forest (-1 at a root).
     """
-    ga, gb = a.graph, b.graph
-    chains = [c for c in ga.chains if len(c) >= settings.min_chain_px]
-    if not chains or gb.n_pixels == 0:
-        return [], [], []
-    lengths = np.array([len(c) for c in chains])
-    samples = np.concatenate(chains)
-    chain_start = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    g = a.graph
+    n_p, n_c = g.n_pixels, settings.max_candidates
+    points = np.full((n_p, 3), np.nan)
+    radii = np.full(n_p, np.nan)
+    if n_p == 0 or b.graph.n_pixels == 0:
+        return points, radii, np.full(n_p, -1, dtype=np.int64)
     if cache is not None and "candidates" in cache:
-        cands = cache["candidates"]
+        cands, parent, levels = cache["candidates"], cache["parent"], cache["levels"]
     else:
-        cands = _candidates(a, b, others, samples, settings)
+        cands = _candidates(a, b, others, np.arange(n_p), settings)
+        parent, levels = g.spanning_forest()
         if cache is not None:
-            cache["candidates"] = cands
+            cache.update(candidates=cands, parent=parent, levels=levels)
     cost_of = cands.unary
     if claims is not None:
-        cost_of = cost_of + settings.claim_cost * _claimed(a, samples, cands, claims, settings)
-    n_e, n_l, n_c = len(chains), int(lengths.max()), settings.max_candidates
-    # padded arrays (E, L, C): the candidates of each chain position
+        cost_of = cost_of + settings.claim_cost * _claimed(a, np.arange(n_p), cands, claims, settings)
     slot = np.arange(len(cands.sample)) - np.searchsorted(cands.sample, cands.sample, side="left")
-    e_of_sample = np.repeat(np.arange(n_e), lengths)
-    i_of_sample = np.arange(len(samples)) - chain_start[e_of_sample]
-    e, i = e_of_sample[cands.sample], i_of_sample[cands.sample]
-    unary = np.full((n_e, n_l, n_c), np.inf)
-    unary[e, i, slot] = cost_of
-    point = np.zeros((n_e, n_l, n_c, 3))
-    point[e, i, slot] = cands.point
-    radius = np.full((n_e, n_l, n_c), np.nan)
-    radius[e, i, slot] = cands.radius
-    chain_b = np.full((n_e, n_l, n_c), -1, dtype=np.int64)
-    chain_b[e, i, slot] = gb.chain_of[cands.q]
-    tangent_b = np.zeros((n_e, n_l, n_c, 2))
-    tangent_b[e, i, slot] = gb.tangent[cands.q]
-    scale = np.zeros((n_e, n_l, n_c))
-    scale[e, i, slot] = cands.scale_a
-    uv_a = np.zeros((n_e, n_l, 2))
-    uv_a[e_of_sample, i_of_sample] = ga.uv_px[samples]
-
+    gap = n_c
+    unary = np.full((n_p, n_c + 1), np.inf)
+    unary[:, gap] = settings.gap_cost
+    unary[cands.sample, slot] = cost_of
+    point = np.zeros((n_p, n_c, 3))
+    point[cands.sample, slot] = cands.point
+    radius = np.full((n_p, n_c), np.nan)
+    radius[cands.sample, slot] = cands.radius
+    chain_b = np.full((n_p, n_c), -1, dtype=np.int64)
+    chain_b[cands.sample, slot] = b.graph.chain_of[cands.q]
+    tangent_b = np.zeros((n_p, n_c, 2))
+    tangent_b[cands.sample, slot] = b.graph.tangent[cands.q]
+    scale = np.ones((n_p, n_c))
+    scale[cands.sample, slot] = cands.scale_a
     s = settings
-    gap = n_c  # index of the no-match state
-    cost = np.concatenate([unary[:, 0], np.full((n_e, 1), s.gap_cost)], axis=1)  # (E, C+1)
-    back = np.zeros((n_e, n_l, n_c + 1), dtype=np.int64)
-    for k in range(1, n_l):
-        active = k < lengths  # (E,)
-        step_px = np.linalg.norm(uv_a[:, k] - uv_a[:, k - 1], axis=1)  # (E,)
-        jump = np.linalg.norm(point[:, k - 1, :, None, :] - point[:, k, None, :, :], axis=3)  # (E, C, C)
-        ds = np.maximum(step_px[:, None, None] * scale[:, k - 1, :, None], 1e-6)
-        trans = s.jump_weight * np.maximum(jump / ds - s.max_stretch, 0.0)
-        switch = chain_b[:, k - 1, :, None] != chain_b[:, k, None, :]
-        cos = np.abs(np.einsum("eai,ebi->eab", tangent_b[:, k - 1], tangent_b[:, k]))
-        trans = trans + np.where(switch, s.switch_cost + s.turn_weight * (1.0 - cos), 0.0)
-        full = np.empty((n_e, n_c + 1, n_c + 1))
-        full[:, :n_c, :n_c] = trans
+
+    def transition(child: np.ndarray, up: np.ndarray) -> np.ndarray:
+        """(n, C+1, C+1) cost of (child state, parent state)."""
+        step_px = np.linalg.norm(g.uv_px[child] - g.uv_px[up], axis=1)
+        jump = np.linalg.norm(point[child][:, :, None, :] - point[up][:, None, :, :], axis=3)
+        ds = np.maximum(step_px[:, None, None] * scale[up][:, None, :], 1e-6)
+        cost = s.jump_weight * np.maximum(jump / ds - s.max_stretch, 0.0)
+        switch = chain_b[child][:, :, None] != chain_b[up][:, None, :]
+        cos = np.abs(np.einsum("nai,nbi->nab", tangent_b[child], tangent_b[up]))
+        turn = np.where(switch, s.switch_cost + s.turn_weight * (1.0 - cos), 0.0)
+        # a side branch leaves A's junction: its partner in B may leave B's junction at an angle
+        turn = np.where((g.degree[up] > 2)[:, None, None], np.where(switch, s.switch_cost, 0.0), turn)
+        full = np.empty((len(child), n_c + 1, n_c + 1))
+        full[:, :n_c, :n_c] = cost + turn
         full[:, :n_c, gap] = s.gap_switch_cost
         full[:, gap, :n_c] = s.gap_switch_cost
         full[:, gap, gap] = 0.0
-        total = cost[:, :, None] + full  # (E, from, to)
-        best_from = np.argmin(total, axis=1)
-        best = np.take_along_axis(total, best_from[:, None, :], axis=1)[:, 0]
-        node = np.concatenate([unary[:, k], np.full((n_e, 1), s.gap_cost)], axis=1)
-        new = best + node
-        back[:, k] = best_from
-        cost = np.where(active[:, None], new, cost)
-    # backtrack
-    pixels, points, radii = [], [], []
-    state = np.argmin(cost, axis=1)
-    choice = np.zeros((n_e, n_l), dtype=np.int64)
-    for k in range(n_l - 1, -1, -1):
-        active = k < lengths
-        choice[active, k] = state[active]
-        if k > 0:
-            state = np.where(active, back[np.arange(n_e), k, state], state)
-    for c in range(n_e):
-        length = lengths[c]
-        ch = choice[c, :length]
-        matched = ch < gap
-        pts = np.full((length, 3), np.nan)
-        rad = np.full(length, np.nan)
-        idx = np.flatnonzero(matched)
-        pts[idx] = point[c, idx, ch[idx]]
-        rad[idx] = radius[c, idx, ch[idx]]
-        pixels.append(chains[c])
-        points.append(pts)
-        radii.append(rad)
-    return pixels, points, radii
+        return full
+
+    total = unary.copy()  # each pixel's cost plus its subtree's messages
+    best_child = np.zeros((n_p, n_c + 1), dtype=np.int64)
+    for level in reversed(levels[1:]):
+        up = parent[level]
+        joint = total[level][:, :, None] + transition(level, up)  # (n, child, parent)
+        choice = np.argmin(joint, axis=1)
+        best_child[level] = choice
+        np.add.at(total, up, np.take_along_axis(joint, choice[:, None, :], axis=1)[:, 0])
+    state = np.zeros(n_p, dtype=np.int64)
+    roots = levels[0]
+    state[roots] = np.argmin(total[roots], axis=1)
+    for level in levels[1:]:
+        state[level] = best_child[level, state[parent[level]]]
+    matched = state < gap
+    idx = np.flatnonzero(matched)
+    points[idx] = point[idx, state[idx]]
+    radii[idx] = radius[idx, state[idx]]
+    return points, radii, parent
