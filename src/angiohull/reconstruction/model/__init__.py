@@ -120,23 +120,25 @@ def _without(tree: VesselTree, leaf: int) -> VesselTree:
 
 def explained_shares(tree: VesselTree, projections: Sequence[Projection]) -> np.ndarray:
     """(B, V): per branch and view, the share of the branch's points whose projection lies inside
-    the projected tube (disc of the projected radius) of a point of another branch."""
+    the projected tube (the disc of the projected radius, plus half a pixel) of a point of another
+    branch."""
     from scipy.spatial import cKDTree
 
     points, radius, owner = tree.points()
+    counts = np.bincount(owner, minlength=tree.n_branches)
     out = np.zeros((tree.n_branches, len(projections)))
     for v, projection in enumerate(projections):
         uv = projection.project(points)
-        rho = radius * max(projection.focal_lengths_px) / projection.depth_mm(points)
-        index = cKDTree(uv)
-        near = index.query_ball_point(uv, r=float(rho.max()) + 0.5)
+        rho = radius * max(projection.focal_lengths_px) / projection.depth_mm(points) + 0.5
+        pairs = cKDTree(uv).query_pairs(float(rho.max()), output_type="ndarray")
         covered = np.zeros(len(points), dtype=bool)
-        for i, js in enumerate(near):
-            js = np.asarray(js, dtype=np.int64)
-            js = js[owner[js] != owner[i]]
-            if len(js):
-                covered[i] = np.any(np.linalg.norm(uv[js] - uv[i], axis=1) <= rho[js] + 0.5)
-        out[:, v] = np.bincount(owner, weights=covered, minlength=tree.n_branches) / np.bincount(owner, minlength=tree.n_branches)
+        if len(pairs):
+            i, j = pairs[:, 0], pairs[:, 1]
+            other = owner[i] != owner[j]
+            gap = np.linalg.norm(uv[i] - uv[j], axis=1)
+            covered[i[other & (gap <= rho[j])]] = True  # i lies in j's disc
+            covered[j[other & (gap <= rho[i])]] = True
+        out[:, v] = np.bincount(owner, weights=covered, minlength=tree.n_branches) / counts
     return out
 
 

@@ -332,9 +332,13 @@ def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), sett
 
     total = unary.copy()  # each pixel's cost plus its subtree's messages
     best_child = np.zeros((n_p, n_c + 1), dtype=np.int64)
-    for level in reversed(levels[1:]):
+    transitions = cache.setdefault("transitions", {}) if cache is not None else {}
+    for depth in range(len(levels) - 1, 0, -1):
+        level = levels[depth]
         up = parent[level]
-        joint = total[level][:, :, None] + transition(level, up)  # (n, child, parent)
+        if depth not in transitions:
+            transitions[depth] = transition(level, up)
+        joint = total[level][:, :, None] + transitions[depth]  # (n, child, parent)
         choice = np.argmin(joint, axis=1)
         best_child[level] = choice
         np.add.at(total, up, np.take_along_axis(joint, choice[:, None, :], axis=1)[:, 0])
