@@ -196,8 +196,9 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         ``"hull"`` (default): the visual hull of ``preset``. ``"tree"`` (beyond the paper,
         experimental; :mod:`.model`): the hull of the views is carved on the lattice (default
         K = 256), then the vessel tree is built from centerline correspondences across the views
-        and tubes fitted to the masks; the vessel points are the lattice points inside those tubes,
-        the centerline points the tree's. Needs two views or more; ``preset``, ``min_views`` and
+        (with three views or more, from the refined hull's skeleton) and tubes fitted to the masks;
+        the vessel points are the lattice points inside those tubes, the centerline points the
+        tree's. Needs two views or more; ``preset``, ``min_views`` and
         ``tree`` do not apply (the tree is the result).
     progress : callable, optional, keyword-only
         Called with a line per stage of the tree method.
@@ -339,7 +340,20 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
     timings["carve"] = time.perf_counter() - start
     if len(outcome.points_mm) == 0:
         raise _empty_hull_error(outcome, names, lattice)
+    initial = None
+    if len(projections) >= 3:
+        # three views or more: the refined hull is no longer ambiguous, and its skeleton starts the tree
+        start = time.perf_counter()
+        cleaned = [clean_mask(m, REFINED.min_neighbours, REFINED.fill_neighbours) for m in masks]
+        if all(m.any() for m in cleaned):
+            initial, _ = refine_hull(outcome.points_mm, lattice, projections, cleaned, REFINED)
+            masks = cleaned
+        timings["refine"] = time.perf_counter() - start
+        if progress:
+            progress(f"{len(projections)} views: the refined hull ({0 if initial is None else len(initial)} points) "
+                     f"starts the tree")
     points, vessel_tree, build = model_tree(projections, masks, lattice, support_points_mm=outcome.points_mm,
+                                            initial_points_mm=initial if initial is not None and len(initial) else None,
                                             progress=progress)
     timings.update({f"tree_{k}": v for k, v in build.timings_s.items()})
     timings["reconstruction"] = sum(timings.values())

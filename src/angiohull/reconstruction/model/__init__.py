@@ -55,7 +55,9 @@ class ModelSettings:
     match: MatchSettings = field(default_factory=lambda: MATCH_SETTINGS)
     tree: TreeSettings = field(default_factory=lambda: TREE_SETTINGS)
     max_segment_mm: float = 2.0  # matched neighbours farther apart than this are not joined by a tube
-    lumen_margin_mm: float = 0.0  # lumen points: lattice points within this of the fitted tubes
+    lumen_margin_steps: float = 0.5  # lumen points: lattice points within this many lattice steps of the tubes
+    spike_window_mm: float = 3.0  # a radius above spike_ratio times the median over this much arc either side ...
+    spike_ratio: float = 1.25  # ... is brought down to it (a stenosis, a narrowing, is kept)
     explained_share: float = 0.9  # a leaf branch this much of which the others cover in every view goes
     claim_rounds: int = 2  # matchings again with each view's pixels claimed by the other's matching
 
@@ -160,6 +162,23 @@ def prune_explained_leaves(tree: VesselTree, projections: Sequence[Projection],
     return tree, removed
 
 
+def without_radius_spikes(tree: VesselTree, window_mm: float, ratio: float) -> VesselTree:
+    """The tree with every radius above ``ratio`` times the median of its branch's radii within
+    ``window_mm`` of arc either side brought down to that bound. The lumen of the tree method is
+    the union of its tubes, and a few points whose cross-sections merged with another vessel's in
+    every view (at a junction, at the ostium) would each add a ball several times too wide."""
+    branches = []
+    for b in tree.branches:
+        arc = b.arc_length_mm
+        radius = b.radius_mm.copy()
+        lo = np.searchsorted(arc, arc - window_mm, side="left")
+        hi = np.searchsorted(arc, arc + window_mm, side="right")
+        bound = ratio * np.array([np.median(b.radius_mm[i:j]) for i, j in zip(lo, hi)])
+        radius = np.minimum(radius, bound)
+        branches.append(Branch(b.points_mm, radius, b.parent, b.parent_point, b.name))
+    return VesselTree(tuple(branches))
+
+
 def tree_lumen_points(tree: VesselTree, lattice: Lattice, margin_mm: float = 0.0) -> np.ndarray:
     """The lattice points inside the tree's tubes (within ``margin_mm`` of them), mm."""
     starts, ends, r0, r1 = [], [], [], []
@@ -174,42 +193,12 @@ def tree_lumen_points(tree: VesselTree, lattice: Lattice, margin_mm: float = 0.0
                                    np.concatenate(r1), lattice, margin_mm=margin_mm)
 
 
-def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice, *,
-               support_points_mm: np.ndarray | None = None, settings: ModelSettings = MODEL_SETTINGS,
-               progress: Callable[[str], None] | None = None) -> tuple[np.ndarray, VesselTree, ModelBuild]:
-    """Reconstruct with the ``tree`` method (module notes).
-
-    Parameters
-    ----------
-    projections, masks : sequences
-        Two or more views (masks boolean, shapes the projections' image shapes).
-    lattice : Lattice
-        The cube of interest whose points make the lumen points.
-    support_points_mm : (S, 3) array, optional
-        The visual hull's points on ``lattice``: pieces of the matched tubes that lie apart are
-        joined along the shortest path through it (as the refined preset's tree does).
-    settings : ModelSettings
-    progress : callable, optional
-        Called with a line per stage.
-
-    Returns
-    -------
-    lumen_points_mm : (N, 3) array
-        Lattice points inside the fitted tubes.
-    tree : VesselTree
-    build : ModelBuild
-
-    Raises
-    ------
-    ReconstructionError
-        With fewer than two views, or when no correspondence is found.
-    """
-    if len(projections) < 2:
-        raise ReconstructionError(f"the tree method needs two views or more, got {len(projections)}")
-    say = progress or (lambda _text: None)
-    timings: dict[str, float] = {}
+def _correspondence_volume(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice,
+                           settings: ModelSettings, say: Callable[[str], None], timings: dict[str, float]):
+    """Steps 1-3: the lattice points of the matched tubes, the pairs matched, the share of each
+    pair's pixels matched, and the skeleton pixels per view."""
     start = time.perf_counter()
-    views = [_view_data(p, np.asarray(m, dtype=bool)) for p, m in zip(projections, masks)]
+    views = [_view_data(p, m) for p, m in zip(projections, masks)]
     timings["centerlines_2d"] = time.perf_counter() - start
     say(f"2D centerlines: {', '.join(str(v.graph.n_pixels) for v in views)} skeleton pixels")
 
@@ -247,21 +236,70 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
                                   "check the calibration and that the masks show the same vessels")
     initial = lattice_points_in_tubes(a, b, r0, r1, lattice)
     timings["tubes"] = time.perf_counter() - start
+    return initial, tuple(pairs), tuple(shares), tuple(v.graph.n_pixels for v in views)
+
+
+
+def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice, *,
+               support_points_mm: np.ndarray | None = None, initial_points_mm: np.ndarray | None = None,
+               settings: ModelSettings = MODEL_SETTINGS,
+               progress: Callable[[str], None] | None = None) -> tuple[np.ndarray, VesselTree, ModelBuild]:
+    """Reconstruct with the ``tree`` method (module notes).
+
+    Parameters
+    ----------
+    projections, masks : sequences
+        Two or more views (masks boolean, shapes the projections' image shapes).
+    lattice : Lattice
+        The cube of interest whose points make the lumen points.
+    support_points_mm : (S, 3) array, optional
+        The visual hull's points on ``lattice``: pieces of the matched tubes that lie apart are
+        joined along the shortest path through it (as the refined preset's tree does).
+    initial_points_mm : (N, 3) array, optional
+        The volume whose tree is fitted, instead of the correspondences' tubes (with three views
+        or more :func:`angiohull.reconstruction.reconstruct` passes the refined hull: the hull of
+        three views is no longer ambiguous, and its skeleton is the better start).
+    settings : ModelSettings
+    progress : callable, optional
+        Called with a line per stage.
+
+    Returns
+    -------
+    lumen_points_mm : (N, 3) array
+        Lattice points inside the fitted tubes.
+    tree : VesselTree
+    build : ModelBuild
+
+    Raises
+    ------
+    ReconstructionError
+        With fewer than two views, or when no correspondence is found.
+    """
+    if len(projections) < 2:
+        raise ReconstructionError(f"the tree method needs two views or more, got {len(projections)}")
+    say = progress or (lambda _text: None)
+    timings: dict[str, float] = {}
+    masks = [np.asarray(m, dtype=bool) for m in masks]
+    if initial_points_mm is None:
+        initial, pairs, shares, skeleton_pixels = _correspondence_volume(projections, masks, lattice, settings, say,
+                                                                         timings)
+    else:
+        initial, pairs, shares, skeleton_pixels = np.asarray(initial_points_mm, dtype=float), (), (), ()
     if len(initial) < 2:
-        raise ReconstructionError("the matched tubes hold fewer than two lattice points; use a finer lattice")
+        raise ReconstructionError("the tree method's volume holds fewer than two lattice points; use a finer lattice")
 
     start = time.perf_counter()
-    tree, tree_build = hull_tree(initial, lattice, projections, [v.mask for v in views],
+    tree, tree_build = hull_tree(initial, lattice, projections, masks,
                                  support_points_mm=support_points_mm, settings=settings.tree)
     tree, pruned = prune_explained_leaves(tree, projections, settings.explained_share)
+    tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     timings["tree"] = time.perf_counter() - start
     say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed)")
 
     start = time.perf_counter()
-    lumen = tree_lumen_points(tree, lattice, settings.lumen_margin_mm)
+    lumen = tree_lumen_points(tree, lattice, settings.lumen_margin_steps * lattice.spacing_mm)
     timings["lumen"] = time.perf_counter() - start
-    build = ModelBuild(pairs=tuple(pairs), matched_share=tuple(shares),
-                       skeleton_pixels=tuple(v.graph.n_pixels for v in views), explained_removed=pruned,
+    build = ModelBuild(pairs=pairs, matched_share=shares, skeleton_pixels=skeleton_pixels, explained_removed=pruned,
                        tree_build=tree_build,
                        timings_s=timings)
     return lumen, tree, build
