@@ -1,15 +1,21 @@
 """The tree method against the visual hull (issue 21): generated trees in two and three views.
 
 Runs, with the same defaults for every case: generated RCA and left trees (``--trees`` each,
-tortuosity simple / moderate / tortuous in turn), exact masks, in
+tortuosity simple / moderate / tortuous in turn) in
 
-* two clinical views, RAO 30 CAU 25 with LAO 45 CRA 20;
-* the paper's three clinical views (RAO 30 CRA 30, LAO 60 CRA 30, RAO 30 CAU 30);
+* two clinical views, RAO 30 CAU 25 with LAO 45 CRA 20: exact masks, the paper's rasteriser, and
+  angiograms rendered by :func:`angiohull.synthetic.angiogram.render_angiogram` (collimator 8 px,
+  seeded) and segmented by :func:`angiohull.segmentation.segment_vessels` (its defaults);
+* two random views per tree, 30-150 degrees apart (primary within +-60, secondary within +-30
+  degrees, seeded), exact masks;
+* the paper's three clinical views (RAO 30 CRA 30, LAO 60 CRA 30, RAO 30 CAU 30) and six views
+  (those, LAO 45 CAU 30, AP, LAO 90), exact masks;
 
-and reconstructs each with ``hull`` (paper preset, K = 100), ``hull`` (refined preset, K = 256)
-and ``tree`` (K = 256): Dice3D, Chamfer, the tree scores of
-:func:`angiohull.metrics.tree.tree_scores` (centerline mean distance, Ot(1 mm) both ways, radius
-MAE, branch recall and precision) and the reconstruction time.
+and the authors' 48 studies (``../shared/benchmarks/peer-synthetic``, when present: their masks and
+views, Dice3D and Chamfer against their ``gt.npy``). Each is reconstructed with ``hull`` (paper
+preset, K = 100), ``hull`` (refined preset, K = 256) and ``tree`` (K = 256): Dice3D, Chamfer, the
+tree scores of :func:`angiohull.metrics.tree.tree_scores` (centerline mean distance, Ot(1 mm)
+both ways, radius MAE, branch recall and precision) and the reconstruction time.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/tree_method.py [--trees 30] [--workers 2] \\
         [--output docs/results/tree-method.md]
@@ -32,19 +38,45 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 LEVELS = ("simple", "moderate", "tortuous")
-SETUPS = {"2 views": ("RAO 30 CAU 25", "LAO 45 CRA 20"), "3 views": ("RAO 30 CRA 30", "LAO 60 CRA 30", "RAO 30 CAU 30")}
+TWO = ("RAO 30 CAU 25", "LAO 45 CRA 20")
+THREE = ("RAO 30 CRA 30", "LAO 60 CRA 30", "RAO 30 CAU 30")
+SETUPS = {  # name: (views, masks)
+    "2 clinical views, exact masks": (TWO, "exact"),
+    "2 clinical views, the paper's rasteriser": (TWO, "paper"),
+    "2 clinical views, segmented angiograms": (TWO, "segmented"),
+    "2 random views 30-150 degrees apart, exact masks": ("random", "exact"),
+    "3 clinical views, exact masks": (THREE, "exact"),
+    "6 views, exact masks": (THREE + ("LAO 45 CAU 30", "AP", "LAO 90"), "exact"),
+}
+SHARED = Path(os.environ.get("ANGIOHULL_SHARED", Path(__file__).resolve().parents[2] / "shared"))
 METHODS = (("hull", "paper"), ("hull", "refined"), ("tree", "paper"))
 KEYS = ("centerline_mean_mm", "ot1mm", "ot1mm_reverse", "radius_mae_mm", "branch_recall", "branch_precision")
 
 
-def _case(kind: str, index: int, views):
+def _random_pair(seed: int) -> tuple[str, str]:
+    """Two C-arm poses 30-150 degrees apart (angle between the beams), drawn from the seed."""
+    from angiohull.geometry import CArmGeometry, format_clinical_angles
+
+    rng = np.random.default_rng(seed)
+    while True:
+        angles = [(rng.uniform(-60, 60), rng.uniform(-30, 30)) for _ in range(2)]
+        d = [CArmGeometry(a, b, 1200.0, 800.0, (0.35, 0.35), (512, 512)).detector_direction() for a, b in angles]
+        between = np.degrees(np.arccos(np.clip(np.dot(d[0], d[1]), -1, 1)))
+        if 30 <= between <= 150:
+            return tuple(format_clinical_angles(round(a), round(b)) for a, b in angles)
+
+
+def _case(kind: str, index: int, setup: str):
     from angiohull.errors import AngiohullError
     from angiohull.synthetic import SynthOptions, make_case
 
+    views, source = SETUPS[setup]
     for attempt in range(10):
         seed = (7_000 if kind == "rca" else 8_000) + index + 1000 * attempt
+        chosen = _random_pair(seed) if views == "random" else views
         try:
-            return seed, make_case(SynthOptions(kind=kind, tortuosity=LEVELS[index % 3], views=views, seed=seed))
+            return seed, make_case(SynthOptions(kind=kind, tortuosity=LEVELS[index % 3], views=chosen, seed=seed,
+                                                rasteriser="paper" if source == "paper" else "exact"))
         except AngiohullError:
             continue
     raise RuntimeError(f"no {kind} tree for index {index}")
@@ -56,12 +88,20 @@ def _run(task: tuple[str, int, str]) -> list[dict]:
     from angiohull.reconstruction import reconstruct
 
     kind, index, setup = task
-    seed, case = _case(kind, index, SETUPS[setup])
+    seed, case = _case(kind, index, setup)
     truth = case.tree.vessel_tree()
     projections, masks = [v.projection for v in case.views], [v.mask for v in case.views]
+    if SETUPS[setup][1] == "segmented":
+        from angiohull.segmentation import segment_vessels
+        from angiohull.synthetic.angiogram import AngiogramParameters, render_angiogram
+
+        masks = [segment_vessels(render_angiogram(case.tree.phantom, v.carm, seed * 10 + i,
+                                                  AngiogramParameters(collimator_px=8)).image)
+                 for i, v in enumerate(case.views)]
     rows = []
     for method, preset in METHODS:
-        row = {"kind": kind, "index": index, "seed": seed, "setup": setup, "method": method, "preset": preset}
+        row = {"kind": kind, "index": index, "seed": seed, "setup": setup, "method": method, "preset": preset,
+               "views": [v.carm.clinical_name() for v in case.views]}
         start = time.perf_counter()
         try:
             result = reconstruct(projections, masks, method=method, preset=preset, centerlines=False)
@@ -78,6 +118,29 @@ def _run(task: tuple[str, int, str]) -> list[dict]:
     return rows
 
 
+def _peer(folder: Path) -> list[dict]:
+    """The three methods on one of the authors' studies: Dice3D and Chamfer against their gt.npy."""
+    from angiohull.metrics import scores_3d
+    from angiohull.reconstruction import reconstruct
+    from angiohull.study import load_study
+
+    study = load_study(folder)
+    rows = []
+    for method, preset in METHODS:
+        row = {"study": folder.name, "views": folder.name.split("_")[0], "method": method, "preset": preset}
+        start = time.perf_counter()
+        try:
+            result = reconstruct(study.projections, study.masks, method=method, preset=preset, centerlines=False)
+        except Exception as exc:  # noqa: BLE001 - a failed case is a row
+            rows.append({**row, "error": f"{type(exc).__name__}: {exc}"})
+            continue
+        row["time_s"] = time.perf_counter() - start
+        s3 = scores_3d(result.vessel_points_mm, study.ground_truth_mm)
+        row.update({"dice3d": s3.dice3d, "chamfer_mm": s3.chamfer_mm})
+        rows.append(row)
+    return rows
+
+
 def _fmt(values) -> str:
     values = np.asarray([v for v in values if v is not None and np.isfinite(v)], dtype=float)
     if len(values) == 0:
@@ -90,11 +153,15 @@ def main() -> None:
     parser.add_argument("--trees", type=int, default=30, help="generated trees per kind (default 30)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--output", type=Path, default=None, help="Markdown report to write (and .json beside it)")
+    parser.add_argument("--no-shared", action="store_true", help="skip the authors' studies")
     args = parser.parse_args()
     start = time.perf_counter()
     tasks = [(kind, i, setup) for setup in SETUPS for kind in ("rca", "left") for i in range(args.trees)]
+    peer_folder = SHARED / "benchmarks" / "peer-synthetic"
+    studies = sorted(peer_folder.glob("*_*_*")) if peer_folder.is_dir() and not args.no_shared else []
     with ProcessPoolExecutor(args.workers) as pool:
         rows = [r for chunk in pool.map(_run, tasks) for r in chunk]
+        peer_rows = [r for chunk in pool.map(_peer, studies) for r in chunk]
     elapsed = time.perf_counter() - start
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     lines = [f"# Results: the tree method against the visual hull", "",
@@ -103,7 +170,8 @@ def main() -> None:
              f"{os.cpu_count()} cores, Python {platform.python_version()}, in {elapsed:.0f} s. Exact masks; the same "
              f"defaults for every case; mean ± sd (median).", ""]
     for setup in SETUPS:
-        lines += [f"## {setup}: {', '.join(SETUPS[setup])}", "",
+        views = SETUPS[setup][0]
+        lines += [f"## {setup}" + ("" if views == "random" else f": {', '.join(views)}"), "",
                   "| trees | method | Dice3D % | Chamfer mm | centerline mean mm | Ot(1 mm) | Ot(1 mm) reverse | "
                   "radius MAE mm | branch recall | branch precision | time s | failed |",
                   "|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -116,14 +184,28 @@ def main() -> None:
                 cells = [_fmt(r.get(k) for r in ok) for k in ("dice3d", "chamfer_mm", *KEYS, "time_s")]
                 lines.append(f"| {kind} ({len(sel)}) | {name} | " + " | ".join(cells) + f" | {len(sel) - len(ok)} |")
         lines.append("")
+    if peer_rows:
+        lines += ["## The authors' 48 studies (their masks and views, against their gt.npy)", "",
+                  "| views | method | Dice3D % | Chamfer mm | time s | failed |", "|---|---|---|---|---|---|"]
+        for views in ("perpendicular", "clinical", "all"):
+            for method, preset in METHODS:
+                sel = [r for r in peer_rows if r["method"] == method and r["preset"] == preset
+                       and (views == "all" or r["views"] == views)]
+                ok = [r for r in sel if "error" not in r]
+                name = f"{method} ({preset})" if method == "hull" else "tree"
+                cells = [_fmt(r.get(k) for r in ok) for k in ("dice3d", "chamfer_mm", "time_s")]
+                lines.append(f"| {views} ({len(sel)}) | {name} | " + " | ".join(cells) + f" | {len(sel) - len(ok)} |")
+        lines.append("")
     failures = [f"{r['setup']} {r['kind']} {r['seed']} {r['method']}: {r['error']}" for r in rows if "error" in r]
+    failures += [f"authors' {r['study']} {r['method']}: {r['error']}" for r in peer_rows if "error" in r]
     if failures:
         lines += ["Failed cases:", ""] + [f"- {f}" for f in failures] + [""]
     text = "\n".join(lines)
     print(text)
     if args.output is not None:
         args.output.write_text(text + "\n", encoding="utf-8")
-        args.output.with_suffix(".json").write_text(json.dumps(rows, indent=1, default=float) + "\n", encoding="utf-8")
+        args.output.with_suffix(".json").write_text(json.dumps({"generated": rows, "authors": peer_rows}, indent=1,
+                                                               default=float) + "\n", encoding="utf-8")
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ def test_every_study_of_the_paper_ships_at_the_papers_size():
         assert len(expand_cases(config)) == size, name
         assert config.reconstruction.model_dump() == {"engine": "octree", "resolution": 100, "threshold_px": 1.0,
                                                       "preset": "paper", "calibrate": False, "calibrate_scale": False,
-                                                      "min_views": None}
+                                                      "min_views": None, "method": "hull"}
         assert config.generator.rasteriser == "paper"
         assert shipped_config_path(name).read_text().startswith("#"), "each file says what it reproduces"
 

@@ -187,3 +187,25 @@ def test_the_tree_method_refuses_one_view_and_hull_only_options():
         reconstruct(projections, masks, method="tree", preset="refined")
     with pytest.raises(ReconstructionError, match="unknown method 'model'"):
         reconstruct(projections, masks, method="model")
+
+
+def test_experiment_configurations_take_the_method_and_refuse_hull_only_options_with_it():
+    from pydantic import ValidationError
+
+    from angiohull.experiments.config import ReconstructionSettings
+
+    assert ReconstructionSettings().method == "hull"
+    assert ReconstructionSettings(method="tree").method == "tree"
+    with pytest.raises(ValidationError, match="method 'tree' has no preset or min_views"):
+        ReconstructionSettings(method="tree", preset="refined")
+    with pytest.raises(ValidationError, match="method 'tree' has no preset or min_views"):
+        ReconstructionSettings(method="tree", min_views=2)
+
+
+def test_an_empty_hull_gives_an_empty_result_when_allowed():
+    projections = _views()
+    masks = _masks(_y(), projections)
+    masks[1] = np.zeros_like(masks[1])
+    masks[1][0, 0] = True  # one pixel far from the vessel: the hull is empty
+    result = reconstruct(projections, masks, method="tree", allow_empty=True)
+    assert len(result.vessel_points_mm) == 0 and result.tree is None and result.tree_error == "the hull is empty"

@@ -415,7 +415,8 @@ def _score_case(params: dict[str, Any], row: dict[str, Any]) -> None:
     result = reconstruct(projections, list(inputs.masks), resolution=options["resolution"],
                          threshold_px=options["threshold_px"], engine=options["engine"], centerlines=False,
                          view_names=inputs.names, allow_empty=True, preset=options.get("preset", "paper"),
-                         min_views=options.get("min_views"), tree=bool(tree_metrics))
+                         min_views=options.get("min_views"), tree=bool(tree_metrics),
+                         method=options.get("method", "hull"))
     points = result.vessel_points_mm
     metrics = params["metrics"]
     row["n_points"] = int(len(points))

@@ -135,6 +135,8 @@ class ReconstructionSettings(_Model):
                                       description="K, lattice points per axis (default: the preset's, 100 or 256)")
     threshold_px: float = Field(1.0, gt=0, description="strict distance threshold, px")
     preset: Literal["paper", "refined"] = Field("paper", description="the method as published, or refined (beyond the paper)")
+    method: Literal["hull", "tree"] = Field("hull", description="hull (the paper's visual hull, see preset) or tree "
+                                                               "(experimental: centerline correspondences, tubes; 2+ views)")
     calibrate: bool = Field(False, description="estimate per-view image shifts first (beyond the paper)")
     calibrate_scale: bool = Field(False, description="also per-view image scales (implies calibrate; 3+ views)")
     min_views: Optional[int] = Field(None, ge=1, description="robust carving: views that must keep a point (default all)")
@@ -149,6 +151,13 @@ class ReconstructionSettings(_Model):
             return check_threshold_px(value, "threshold_px")
         except AngiohullError as exc:
             raise ValueError(str(exc).removeprefix("threshold_px ")) from None
+
+    @model_validator(mode="after")
+    def _tree_method_has_no_hull_options(self) -> "ReconstructionSettings":
+        if self.method == "tree" and (self.preset != "paper" or self.min_views is not None):
+            raise ValueError("method 'tree' has no preset or min_views (they choose how the hull is carved); "
+                             "leave preset at 'paper' and min_views unset")
+        return self
 
     @model_validator(mode="before")
     @classmethod

@@ -98,7 +98,8 @@ def analyse_run(data: RunData) -> dict[str, Any]:
         "name": config.name, "mode": config.mode, "description": config.description, "paper_ref": config.paper,
         "design": config.design.type, "engine": config.reconstruction.engine,
         "resolution": config.reconstruction.resolution, "threshold_px": config.reconstruction.threshold_px,
-        "preset": config.reconstruction.preset, "calibrate": config.reconstruction.calibrate,
+        "preset": config.reconstruction.preset, "method": config.reconstruction.method,
+        "calibrate": config.reconstruction.calibrate,
         "calibrate_scale": config.reconstruction.calibrate_scale,
         "min_views": config.reconstruction.min_views,
         "rasteriser": config.generator.rasteriser, "cases_total": data.total, "cases_done": len(rows),
@@ -210,7 +211,7 @@ def render_markdown(analyses: Sequence[dict[str, Any]], figures: dict[str, str])
         timing = a["timing"]["time_s"]
         run_rows.append([a["name"], a["mode"], f"{a['cases_done']}/{a['cases_total']}", counts or "-",
                          f"{a['engine']}, K={a['resolution'] or 'preset default'}, {a['threshold_px']:g} px, "
-                         f"{a.get('preset', 'paper')}{', calibrated' if a.get('calibrate') or a.get('calibrate_scale') else ''}"
+                         f"{a.get('preset', 'paper')}{', tree method' if a.get('method') == 'tree' else ''}{', calibrated' if a.get('calibrate') or a.get('calibrate_scale') else ''}"
                          f"{' (scales too)' if a.get('calibrate_scale') else ''}"
                          f"{', min_views ' + str(a['min_views']) if a.get('min_views') else ''}", _duration(a["wall_s"]),
                          "; ".join(a["executors"]) or "-",

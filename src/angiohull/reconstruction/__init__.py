@@ -217,7 +217,7 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     if method == "tree":
         return _reconstruct_tree(projections, checked_masks, names, resolution=resolution, threshold_px=threshold_px,
                                  engine=engine, centerlines=centerlines, half_edge_mm=half_edge_mm, device=device,
-                                 min_views=min_views, preset=preset, progress=progress)
+                                 min_views=min_views, preset=preset, progress=progress, allow_empty=allow_empty)
     if preset not in PRESETS:
         raise ReconstructionError(f"unknown preset {preset!r}; choose one of {list(PRESETS)}")
     if resolution is None:
@@ -309,7 +309,7 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
 def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray], names: tuple[str, ...], *,
                       resolution: int | None, threshold_px: float, engine: str, centerlines: bool,
                       half_edge_mm: float | None, device: str, min_views: int | None, preset: str,
-                      progress: Callable[[str], None] | None) -> ReconstructionResult:
+                      progress: Callable[[str], None] | None, allow_empty: bool = False) -> ReconstructionResult:
     """``reconstruct(method="tree")`` (see :func:`reconstruct`)."""
     from .model import model_tree
 
@@ -338,8 +338,15 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
     else:
         outcome = ENGINES[engine](lattice, list(projections), masks, threshold_px=threshold, min_views=None)
     timings["carve"] = time.perf_counter() - start
+    order = outcome.order if outcome.order is not None else tuple(range(len(names)))
     if len(outcome.points_mm) == 0:
-        raise _empty_hull_error(outcome, names, lattice)
+        if not allow_empty:
+            raise _empty_hull_error(outcome, names, lattice)
+        timings["reconstruction"] = timings["total"] = sum(timings.values())
+        return ReconstructionResult(vessel_points_mm=outcome.points_mm, centerline_points_mm=None, lattice=lattice,
+                                    engine=engine, device=device, threshold_px=threshold, view_names=names,
+                                    survivors_per_view=outcome.survivors_per_view, view_order=order, preset=preset,
+                                    timings_s=timings, tree_error="the hull is empty", method="tree")
     initial = None
     if len(projections) >= 3:
         # three views or more: the refined hull is no longer ambiguous, and its skeleton starts the tree
@@ -362,8 +369,7 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
         vessel_points_mm=points,
         centerline_points_mm=vessel_tree.points()[0] if centerlines else None,
         lattice=lattice, engine=engine, device=device, threshold_px=threshold, view_names=names,
-        survivors_per_view=outcome.survivors_per_view,
-        view_order=outcome.order if outcome.order is not None else tuple(range(len(names))),
+        survivors_per_view=outcome.survivors_per_view, view_order=order,
         preset=preset, timings_s=timings, tree=vessel_tree, tree_build=build.tree_build, method="tree",
         model_build=build,
     )
