@@ -141,6 +141,28 @@ def _peer(folder: Path) -> list[dict]:
     return rows
 
 
+def _timing(repeats: int) -> list[dict]:
+    """Medians of ``repeats`` runs of the tree method (after a first one that imports what it uses)
+    on three generated trees in the two clinical views, in this process, per stage."""
+    from angiohull.reconstruction import reconstruct
+
+    out = []
+    for kind, index in (("rca", 0), ("left", 0), ("left", 1)):
+        seed, case = _case(kind, index, "2 clinical views, exact masks")
+        projections, masks = [v.projection for v in case.views], [v.mask for v in case.views]
+        totals, stages = [], []
+        for repeat in range(repeats + 1):
+            start = time.perf_counter()
+            result = reconstruct(projections, masks, method="tree", centerlines=False)
+            if repeat:
+                totals.append(time.perf_counter() - start)
+                stages.append(result.timings_s)
+        out.append({"kind": kind, "seed": seed, "total_s": float(np.median(totals)),
+                    "stages_s": {k: float(np.median([s[k] for s in stages])) for k in stages[0]
+                                 if k not in ("reconstruction", "total")}})
+    return out
+
+
 def _fmt(values) -> str:
     values = np.asarray([v for v in values if v is not None and np.isfinite(v)], dtype=float)
     if len(values) == 0:
@@ -154,22 +176,28 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--output", type=Path, default=None, help="Markdown report to write (and .json beside it)")
     parser.add_argument("--no-shared", action="store_true", help="skip the authors' studies")
+    parser.add_argument("--repeats", type=int, default=5, help="timed runs per case of the time section (default 5)")
+    parser.add_argument("--timing-only", action="store_true", help="only the time section (no pool, no scores)")
     args = parser.parse_args()
     start = time.perf_counter()
-    tasks = [(kind, i, setup) for setup in SETUPS for kind in ("rca", "left") for i in range(args.trees)]
+    tasks = [] if args.timing_only else [(kind, i, setup) for setup in SETUPS for kind in ("rca", "left")
+                                         for i in range(args.trees)]
     peer_folder = SHARED / "benchmarks" / "peer-synthetic"
-    studies = sorted(peer_folder.glob("*_*_*")) if peer_folder.is_dir() and not args.no_shared else []
+    studies = (sorted(peer_folder.glob("*_*_*")) if peer_folder.is_dir() and not (args.no_shared or args.timing_only)
+               else [])
     with ProcessPoolExecutor(args.workers) as pool:
         rows = [r for chunk in pool.map(_run, tasks) for r in chunk]
         peer_rows = [r for chunk in pool.map(_peer, studies) for r in chunk]
+    rows = rows if rows else []
+    timing = _timing(args.repeats)
     elapsed = time.perf_counter() - start
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    lines = [f"# Results: the tree method against the visual hull", "",
-             f"Produced by `OPENBLAS_NUM_THREADS=1 python benchmarks/tree_method.py --trees {args.trees} "
-             f"--workers {args.workers}` on {datetime.date.today()}, commit {commit}, {platform.machine()} with "
-             f"{os.cpu_count()} cores, Python {platform.python_version()}, in {elapsed:.0f} s. Exact masks; the same "
+    command = "--timing-only" if args.timing_only else f"--trees {args.trees} --workers {args.workers}"
+    lines = ["# Results: the tree method against the visual hull", "",
+             f"Produced by `OPENBLAS_NUM_THREADS=1 python benchmarks/tree_method.py {command}` on {datetime.date.today()}, commit {commit}, {platform.machine()} with "
+             f"{os.cpu_count()} cores, Python {platform.python_version()}, in {elapsed:.0f} s. The same "
              f"defaults for every case; mean ± sd (median).", ""]
-    for setup in SETUPS:
+    for setup in [] if args.timing_only else SETUPS:
         views = SETUPS[setup][0]
         lines += [f"## {setup}" + ("" if views == "random" else f": {', '.join(views)}"), "",
                   "| trees | method | Dice3D % | Chamfer mm | centerline mean mm | Ot(1 mm) | Ot(1 mm) reverse | "
@@ -196,6 +224,15 @@ def main() -> None:
                 cells = [_fmt(r.get(k) for r in ok) for k in ("dice3d", "chamfer_mm", "time_s")]
                 lines.append(f"| {views} ({len(sel)}) | {name} | " + " | ".join(cells) + f" | {len(sel) - len(ok)} |")
         lines.append("")
+    stage_names = list(timing[0]["stages_s"])
+    lines += ["## Time of the tree method, two 512 x 512 views", "",
+              f"One process, medians of {args.repeats} runs per case after a first run (imports done); seconds. "
+              "The machine was shared with other work while this ran, so these are upper bounds.", "",
+              "| tree | total | " + " | ".join(stage_names) + " |", "|---|---|" + "---|" * len(stage_names)]
+    for t in timing:
+        lines.append(f"| {t['kind']} seed {t['seed']} | **{t['total_s']:.2f}** | "
+                     + " | ".join(f"{t['stages_s'][k]:.2f}" for k in stage_names) + " |")
+    lines.append("")
     failures = [f"{r['setup']} {r['kind']} {r['seed']} {r['method']}: {r['error']}" for r in rows if "error" in r]
     failures += [f"authors' {r['study']} {r['method']}: {r['error']}" for r in peer_rows if "error" in r]
     if failures:
@@ -204,7 +241,7 @@ def main() -> None:
     print(text)
     if args.output is not None:
         args.output.write_text(text + "\n", encoding="utf-8")
-        args.output.with_suffix(".json").write_text(json.dumps({"generated": rows, "authors": peer_rows}, indent=1,
+        args.output.with_suffix(".json").write_text(json.dumps({"generated": rows, "authors": peer_rows, "timing": timing}, indent=1,
                                                                default=float) + "\n", encoding="utf-8")
 
 
