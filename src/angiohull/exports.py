@@ -310,7 +310,8 @@ def _nifti_image(lumen: LumenVolume) -> Any:
 
     labels = _lumen_labels(lumen)
     if labels.max() <= np.iinfo(np.uint8).max:  # half the bytes to compress; the same labels
-        labels = labels.astype(np.uint8)
+        # in NIfTI's order (first index fastest): nibabel then writes the memory as it lies
+        labels = labels.astype(np.uint8, order="F")
     affine = LPS_TO_RAS @ np.asarray(lumen.affine_lps, dtype=np.float64)
     header = nibabel.Nifti1Header()
     header.set_data_dtype(labels.dtype)

@@ -246,7 +246,9 @@ def _blocked(tree: VesselTree, step_mm: float, *, mesh: bool, labels: bool) -> t
             for by in range(first[i, 1], last[i, 1] + 1):
                 for bz in range(first[i, 2], last[i, 2] + 1):
                     members.setdefault((bx, by, bz), []).append(i)
-    label_volume = np.zeros(tuple(grid.shape), dtype=np.uint16) if labels else None
+    # Fortran order: NIfTI stores the volume with the first index fastest, so the export writes it
+    # as it lies in memory instead of transposing tens of millions of voxels
+    label_volume = np.zeros(tuple(grid.shape), dtype=np.uint16, order="F") if labels else None
     vertices, faces, count = [], [], 0
     for key in sorted(members):
         start = np.array(key) * size
@@ -285,9 +287,17 @@ def _welded(vertices: np.ndarray, faces: np.ndarray, grid: _Grid, size: int) -> 
     used, compact = np.unique(index, return_inverse=True)
     faces = compact[index[faces]].reshape(-1, 3)
     mesh = SurfaceMesh(grid.origin + grid.step * vertices[used], faces, grid.step)
-    if mesh.volume_mm3 < 0:  # faces wound inward: turn them
+    if _signed_volume(mesh.vertices_mm, mesh.faces) < 0:  # faces wound inward: turn them
         mesh = SurfaceMesh(mesh.vertices_mm, mesh.faces[:, ::-1].copy(), grid.step)
     return mesh
+
+
+def _signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Six times the enclosed volume (positive for outward normals): the sum of ``a . (b x c)``
+    over the faces, written out per coordinate (a few times faster than ``np.cross``)."""
+    a, b, c = (vertices[faces[:, k]].T for k in range(3))
+    return float(np.sum(a[0] * (b[1] * c[2] - b[2] * c[1]) + a[1] * (b[2] * c[0] - b[0] * c[2])
+                        + a[2] * (b[0] * c[1] - b[1] * c[0])))
 
 
 def _step(tree: VesselTree, step_mm: float | None) -> float:
