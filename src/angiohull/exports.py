@@ -305,13 +305,37 @@ def _write_stl(path: Path, mesh: SurfaceMesh) -> None:
     _vtk_write(writer, path)
 
 
+def _labelled(labels: np.ndarray) -> np.ndarray:
+    """Flat (C order) indices of the nonzero labels, ascending: the grid is scanned 8 bytes at a
+    time (a label volume is mostly empty), then the words that hold a label are looked into."""
+    flat = np.ascontiguousarray(labels).reshape(-1)
+    per_word = 8 // flat.itemsize if 8 % flat.itemsize == 0 else 0
+    whole = len(flat) - len(flat) % per_word if per_word else 0
+    if whole == 0:
+        return np.flatnonzero(flat)
+    words = np.flatnonzero(flat[:whole].view(np.uint64) != 0)  # nonzero is faster on bools
+    candidates = (words[:, None] * per_word + np.arange(per_word)).reshape(-1)
+    candidates = np.concatenate([candidates, np.arange(whole, len(flat))])
+    return candidates[flat[candidates] != 0]
+
+
+def _in_nifti_order(labels: np.ndarray) -> np.ndarray:
+    """The labels in NIfTI's order (first index fastest: Fortran order), so that nibabel writes
+    the memory as it lies instead of transposing the grid; uint8 when every label fits (half the
+    bytes to compress). Built from the few labelled voxels: a transposing copy of a grid of tens
+    of millions of voxels costs ten times more."""
+    flat = _labelled(labels)
+    values = labels.reshape(-1)[flat]
+    dtype = np.uint8 if len(values) == 0 or values.max() <= np.iinfo(np.uint8).max else labels.dtype
+    out = np.zeros(labels.size, dtype=dtype)
+    out[np.ravel_multi_index(np.unravel_index(flat, labels.shape), labels.shape, order="F")] = values
+    return out.reshape(labels.shape, order="F")
+
+
 def _nifti_image(lumen: LumenVolume) -> Any:
     import nibabel
 
-    labels = _lumen_labels(lumen)
-    if labels.max() <= np.iinfo(np.uint8).max:  # half the bytes to compress; the same labels
-        # in NIfTI's order (first index fastest): nibabel then writes the memory as it lies
-        labels = labels.astype(np.uint8, order="F")
+    labels = _in_nifti_order(_lumen_labels(lumen))
     affine = LPS_TO_RAS @ np.asarray(lumen.affine_lps, dtype=np.float64)
     header = nibabel.Nifti1Header()
     header.set_data_dtype(labels.dtype)

@@ -246,9 +246,7 @@ def _blocked(tree: VesselTree, step_mm: float, *, mesh: bool, labels: bool) -> t
             for by in range(first[i, 1], last[i, 1] + 1):
                 for bz in range(first[i, 2], last[i, 2] + 1):
                     members.setdefault((bx, by, bz), []).append(i)
-    # Fortran order: NIfTI stores the volume with the first index fastest, so the export writes it
-    # as it lies in memory instead of transposing tens of millions of voxels
-    label_volume = np.zeros(tuple(grid.shape), dtype=np.uint16, order="F") if labels else None
+    label_volume = np.zeros(tuple(grid.shape), dtype=np.uint16) if labels else None
     vertices, faces, count = [], [], 0
     for key in sorted(members):
         start = np.array(key) * size
