@@ -482,8 +482,9 @@ def write_tree_exports(out_dir: PathLike, tree: VesselTree, *, mesh: SurfaceMesh
     (:func:`write_mesh_stl`) when ``mesh`` is given, ``lumen.nii.gz`` (:func:`write_lumen_nifti`)
     when ``lumen`` is given. Existing files of those names are replaced.
 
-    Every file is first written under a hidden temporary name in ``out_dir``; only when all are
-    written are they renamed into place. If anything fails, every file this call wrote (the
+    Every file is first written under a hidden temporary name in ``out_dir`` (the label map on a
+    second thread, while the others are written: zlib lets other threads run while it
+    compresses); only when all are written are they renamed into place. If anything fails, every file this call wrote (the
     temporaries and any already renamed) and every folder it created is removed before the error
     is raised.
 
@@ -511,25 +512,44 @@ def write_tree_exports(out_dir: PathLike, tree: VesselTree, *, mesh: SurfaceMesh
         jobs.append(("mesh_stl", lambda p: _write_stl(p, checked_mesh)))
     if lumen is not None:
         _lumen_labels(lumen)
-        jobs.append(("lumen_nifti", lambda p: _write_nifti(p, lumen)))
+        jobs.append(("lumen_nifti", lambda p: _write_nifti(p, lumen)))  # last: written on a second thread
 
     finals = {key: out_dir / EXPORT_FILES[key] for key, _ in jobs}
     created: list[Path] = []
     temporaries: dict[str, Path] = {}
     placed: list[Path] = []
     current = finals["centerlines_vtp"]
+    background = None  # the label map, compressed on a second thread while the others are written
+    pool = None
     try:
         created = _make_folder(out_dir)
+        if lumen is not None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            # zlib lets other threads run while it compresses: the label map (the largest file by
+            # far) costs little more than the other four together
+            key, write = jobs.pop()
+            current = finals[key]
+            temporaries[key] = _open_temporary(current)
+            pool = ThreadPoolExecutor(1, thread_name_prefix="angiohull-nifti")
+            background = (key, pool.submit(write, temporaries[key]))
         for key, write in jobs:
             current = finals[key]
             temporaries[key] = _open_temporary(current)
             write(temporaries[key])
+            _check_written(temporaries[key])
+        if background is not None:
+            key, future = background
+            current = finals[key]
+            future.result()
             _check_written(temporaries[key])
         for key, temporary in temporaries.items():
             current = finals[key]
             os.replace(temporary, current)
             placed.append(current)
     except BaseException as exc:
+        if pool is not None:
+            pool.shutdown(wait=True)  # nothing may still be writing when the temporaries go
         for temporary in temporaries.values():
             _remove(temporary)
         for path in placed:
@@ -542,6 +562,9 @@ def write_tree_exports(out_dir: PathLike, tree: VesselTree, *, mesh: SurfaceMesh
         if isinstance(exc, OSError):
             raise TreeError(f"cannot write {current}: {_reason(exc)}") from None
         raise
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
     return finals
 
 
