@@ -338,8 +338,10 @@ def _welded(vertices: np.ndarray, faces: np.ndarray, grid: _Grid, size: int) -> 
     if len(candidates):
         _, first, inverse = np.unique(vertices[candidates], axis=0, return_index=True, return_inverse=True)
         index[candidates] = candidates[first][inverse.ravel()]
-    used, compact = np.unique(index, return_inverse=True)
-    faces = compact[index[faces]].reshape(-1, 3)
+    # every copy points at the first (lowest) of its kind, itself kept: the kept vertices in order
+    kept = index == np.arange(len(index))
+    used = np.flatnonzero(kept)
+    faces = (np.cumsum(kept) - 1)[index[faces]].reshape(-1, 3)
     mesh = SurfaceMesh(grid.origin + grid.step * vertices[used], faces, grid.step)
     if _signed_volume(mesh.vertices_mm, mesh.faces) < 0:  # faces wound inward: turn them
         mesh = SurfaceMesh(mesh.vertices_mm, mesh.faces[:, ::-1].copy(), grid.step)
