@@ -525,17 +525,20 @@ class _SupportBridge:
 
     def __init__(self, support_mm: np.ndarray, lattice: Lattice, limit_mm: float):
         self._limit = limit_mm
-        self._occupied, self._origin, self._h = _occupancy(support_mm, lattice, lattice.spacing_mm)
+        self._support, self._lattice = support_mm, lattice
         self._graphs: dict[bool, tuple] = {}
 
     def _graph(self, grown: bool) -> tuple:
-        """(index volume, cell centres in mm, sparse graph) of the cells, grown by one or not."""
+        """(index volume, cell centres in mm, sparse graph) of the cells, grown by one or not; the
+        index volume holds 1 + the cell's index (0: no cell)."""
+        if not self._graphs:  # the first use: most trees need no bridge
+            self._occupied, self._origin, self._h = _occupancy(self._support, self._lattice, self._lattice.spacing_mm)
         if grown not in self._graphs:
             import scipy.sparse as sparse
 
             voxels = coordinates(dilated(self._occupied, 1) if grown else self._occupied)
-            index = np.full(self._occupied.shape, -1, dtype=np.int64)
-            index[tuple(voxels.T)] = np.arange(len(voxels))
+            index = np.zeros(self._occupied.shape, dtype=np.int32)  # untouched pages are never allocated
+            index[tuple(voxels.T)] = np.arange(1, len(voxels) + 1, dtype=np.int32)
             heads, tails, lengths = neighbour_edges(voxels, self._occupied.shape)
             graph = sparse.coo_matrix((self._h * lengths, (heads, tails)), shape=(len(voxels), len(voxels))).tocsr()
             self._graphs[grown] = (index, self._origin + self._h * voxels, graph)
@@ -545,7 +548,7 @@ class _SupportBridge:
         local = np.round((points_mm - self._origin) / self._h).astype(np.int64)
         ok = np.all((local >= 0) & (local < np.array(index.shape)), axis=1)
         found = np.full(len(points_mm), -1, dtype=np.int64)
-        found[ok] = index[tuple(local[ok].T)]
+        found[ok] = index[tuple(local[ok].T)].astype(np.int64) - 1
         found = np.unique(found)
         return found[found >= 0]
 
