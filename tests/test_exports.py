@@ -247,6 +247,39 @@ def test_write_tree_exports_failure_in_the_middle_leaves_nothing(tmp_path, monke
     assert (existing / "centerlines.vtp").read_bytes() == b"old"
 
 
+def test_the_label_map_written_beside_the_others_fails_as_cleanly(tmp_path, monkeypatch, mesh, lumen):
+    # the label map is written on a second thread: its failure names its file, a failure of
+    # another file waits for it, and either way nothing is left behind
+    import threading
+
+    def slow_full_disk(path, lumen):
+        Path(path).write_bytes(b"partial")
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(exports, "_write_nifti", slow_full_disk)
+    with pytest.raises(TreeError, match=r"cannot write .*lumen\.nii\.gz: No space left on device"):
+        write_tree_exports(tmp_path / "a", TREE, mesh=mesh, lumen=lumen)
+    assert _files_under(tmp_path) == []
+
+    started, finished = threading.Event(), threading.Event()
+
+    def late_nifti(path, lumen):
+        started.set()
+        threading.Event().wait(0.3)
+        Path(path).write_bytes(b"late")
+        finished.set()
+
+    def failing_json(path, tree):
+        assert started.wait(5)
+        raise OSError(errno.EIO, os.strerror(errno.EIO), str(path))
+
+    monkeypatch.setattr(exports, "_write_nifti", late_nifti)
+    monkeypatch.setattr(exports, "_write_json", failing_json)
+    with pytest.raises(TreeError, match=r"cannot write .*tree\.json: Input/output error"):
+        write_tree_exports(tmp_path / "b", TREE, mesh=mesh, lumen=lumen)
+    assert finished.is_set() and _files_under(tmp_path) == []
+
+
 def test_a_writer_that_writes_nothing_is_a_failure(tmp_path, monkeypatch):
     # VTK writers report failure on the console only; an empty or absent output must still fail
     monkeypatch.setattr(exports, "_write_vtp", lambda path, tree: None)

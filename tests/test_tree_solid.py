@@ -114,3 +114,31 @@ def test_the_blocked_grid_gives_the_whole_grids_mesh_and_labels():
     assert len(mesh.faces) == len(faces) and len(mesh.vertices_mm) == len(vertices)
     np.testing.assert_allclose(np.sort(mesh.vertices_mm, axis=0), np.sort(origin + step * vertices, axis=0), atol=1e-5)
     _checked(mesh)
+
+
+def test_capsules_computed_together_give_the_single_capsule_numbers():
+    # the grid fills a block from groups of capsules at once; bit for bit the capsule-by-capsule
+    # reference (Grid.capsule, merged in capsule order: of equal distances the first capsule owns)
+    from angiohull.tree.solid import _Grid
+
+    tree = VesselTree((Branch(_line((0, 0, 0), (12, 3, 1), 25), np.linspace(1.4, 0.6, 25)),
+                       Branch(_line((6, 1.5, 0.5), (7, 9, -3), 17), 0.7, parent=0, parent_point=12),
+                       Branch(np.array([[12.3, 3.2, 1.0], [13.0, 3.5, 1.0], [14.0, 3.0, 1.5]]), 0.5, parent=0,
+                              parent_point=24)))  # leaves its parent point through a connecting capsule
+    grid = _Grid.of(tree, 0.2)
+    start, stop = np.array([5, 3, 0]), np.minimum(np.array([70, 60, 50]), grid.shape)
+    distance = np.full(tuple(stop - start), np.float32(grid.band), dtype=np.float32)
+    owner = np.zeros(tuple(stop - start), dtype=np.uint16)
+    for i in range(len(grid.a)):
+        first, last = np.maximum(grid.lo[i], start), np.minimum(grid.hi[i] + 1, stop)
+        if np.any(last <= first):
+            continue
+        d = grid.capsule(i, first, last)
+        window = tuple(slice(f - s, l - s) for f, l, s in zip(first, last, start))
+        closer = d < distance[window]
+        np.copyto(distance[window], d, where=closer)
+        np.copyto(owner[window], np.uint16(grid.branch[i] + 1), where=closer)
+    assert np.count_nonzero(distance <= 0) > 1000 and len(np.unique(owner)) == 4
+    got_distance, got_owner = grid.fill(start, stop, range(len(grid.a)))
+    np.testing.assert_array_equal(got_distance, distance)
+    np.testing.assert_array_equal(got_owner, owner)

@@ -305,12 +305,37 @@ def _write_stl(path: Path, mesh: SurfaceMesh) -> None:
     _vtk_write(writer, path)
 
 
+def _labelled(labels: np.ndarray) -> np.ndarray:
+    """Flat (C order) indices of the nonzero labels, ascending: the grid is scanned 8 bytes at a
+    time (a label volume is mostly empty), then the words that hold a label are looked into."""
+    flat = np.ascontiguousarray(labels).reshape(-1)
+    per_word = 8 // flat.itemsize if 8 % flat.itemsize == 0 else 0
+    whole = len(flat) - len(flat) % per_word if per_word else 0
+    if whole == 0:
+        return np.flatnonzero(flat)
+    words = np.flatnonzero(flat[:whole].view(np.uint64) != 0)  # nonzero is faster on bools
+    candidates = (words[:, None] * per_word + np.arange(per_word)).reshape(-1)
+    candidates = np.concatenate([candidates, np.arange(whole, len(flat))])
+    return candidates[flat[candidates] != 0]
+
+
+def _in_nifti_order(labels: np.ndarray) -> np.ndarray:
+    """The labels in NIfTI's order (first index fastest: Fortran order), so that nibabel writes
+    the memory as it lies instead of transposing the grid; uint8 when every label fits (half the
+    bytes to compress). Built from the few labelled voxels: a transposing copy of a grid of tens
+    of millions of voxels costs ten times more."""
+    flat = _labelled(labels)
+    values = labels.reshape(-1)[flat]
+    dtype = np.uint8 if len(values) == 0 or values.max() <= np.iinfo(np.uint8).max else labels.dtype
+    out = np.zeros(labels.size, dtype=dtype)
+    out[np.ravel_multi_index(np.unravel_index(flat, labels.shape), labels.shape, order="F")] = values
+    return out.reshape(labels.shape, order="F")
+
+
 def _nifti_image(lumen: LumenVolume) -> Any:
     import nibabel
 
-    labels = _lumen_labels(lumen)
-    if labels.max() <= np.iinfo(np.uint8).max:  # half the bytes to compress; the same labels
-        labels = labels.astype(np.uint8)
+    labels = _in_nifti_order(_lumen_labels(lumen))
     affine = LPS_TO_RAS @ np.asarray(lumen.affine_lps, dtype=np.float64)
     header = nibabel.Nifti1Header()
     header.set_data_dtype(labels.dtype)
@@ -457,8 +482,9 @@ def write_tree_exports(out_dir: PathLike, tree: VesselTree, *, mesh: SurfaceMesh
     (:func:`write_mesh_stl`) when ``mesh`` is given, ``lumen.nii.gz`` (:func:`write_lumen_nifti`)
     when ``lumen`` is given. Existing files of those names are replaced.
 
-    Every file is first written under a hidden temporary name in ``out_dir``; only when all are
-    written are they renamed into place. If anything fails, every file this call wrote (the
+    Every file is first written under a hidden temporary name in ``out_dir`` (the label map on a
+    second thread, while the others are written: zlib lets other threads run while it
+    compresses); only when all are written are they renamed into place. If anything fails, every file this call wrote (the
     temporaries and any already renamed) and every folder it created is removed before the error
     is raised.
 
@@ -486,25 +512,44 @@ def write_tree_exports(out_dir: PathLike, tree: VesselTree, *, mesh: SurfaceMesh
         jobs.append(("mesh_stl", lambda p: _write_stl(p, checked_mesh)))
     if lumen is not None:
         _lumen_labels(lumen)
-        jobs.append(("lumen_nifti", lambda p: _write_nifti(p, lumen)))
+        jobs.append(("lumen_nifti", lambda p: _write_nifti(p, lumen)))  # last: written on a second thread
 
     finals = {key: out_dir / EXPORT_FILES[key] for key, _ in jobs}
     created: list[Path] = []
     temporaries: dict[str, Path] = {}
     placed: list[Path] = []
     current = finals["centerlines_vtp"]
+    background = None  # the label map, compressed on a second thread while the others are written
+    pool = None
     try:
         created = _make_folder(out_dir)
+        if lumen is not None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            # zlib lets other threads run while it compresses: the label map (the largest file by
+            # far) costs little more than the other four together
+            key, write = jobs.pop()
+            current = finals[key]
+            temporaries[key] = _open_temporary(current)
+            pool = ThreadPoolExecutor(1, thread_name_prefix="angiohull-nifti")
+            background = (key, pool.submit(write, temporaries[key]))
         for key, write in jobs:
             current = finals[key]
             temporaries[key] = _open_temporary(current)
             write(temporaries[key])
+            _check_written(temporaries[key])
+        if background is not None:
+            key, future = background
+            current = finals[key]
+            future.result()
             _check_written(temporaries[key])
         for key, temporary in temporaries.items():
             current = finals[key]
             os.replace(temporary, current)
             placed.append(current)
     except BaseException as exc:
+        if pool is not None:
+            pool.shutdown(wait=True)  # nothing may still be writing when the temporaries go
         for temporary in temporaries.values():
             _remove(temporary)
         for path in placed:
@@ -517,6 +562,9 @@ def write_tree_exports(out_dir: PathLike, tree: VesselTree, *, mesh: SurfaceMesh
         if isinstance(exc, OSError):
             raise TreeError(f"cannot write {current}: {_reason(exc)}") from None
         raise
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
     return finals
 
 

@@ -83,7 +83,7 @@ from ..geometry import Projection
 from ..tree import Branch, VesselTree
 from ..tree.skeleton import SkeletonInfo, SkeletonSettings, rerooted, tree_from_skeleton
 from ..tree.teasar import teasar_skeleton
-from ..tree.voxels import dilated, neighbour_edges
+from ..tree.voxels import coordinates, dilated, distance_to, neighbour_edges
 from .cube import Lattice
 
 __all__ = ["TreeSettings", "TREE_SETTINGS", "TreeBuild", "hull_tree"]
@@ -525,17 +525,20 @@ class _SupportBridge:
 
     def __init__(self, support_mm: np.ndarray, lattice: Lattice, limit_mm: float):
         self._limit = limit_mm
-        self._occupied, self._origin, self._h = _occupancy(support_mm, lattice, lattice.spacing_mm)
+        self._support, self._lattice = support_mm, lattice
         self._graphs: dict[bool, tuple] = {}
 
     def _graph(self, grown: bool) -> tuple:
-        """(index volume, cell centres in mm, sparse graph) of the cells, grown by one or not."""
+        """(index volume, cell centres in mm, sparse graph) of the cells, grown by one or not; the
+        index volume holds 1 + the cell's index (0: no cell)."""
+        if not self._graphs:  # the first use: most trees need no bridge
+            self._occupied, self._origin, self._h = _occupancy(self._support, self._lattice, self._lattice.spacing_mm)
         if grown not in self._graphs:
             import scipy.sparse as sparse
 
-            voxels = np.argwhere(dilated(self._occupied, 1) if grown else self._occupied)
-            index = np.full(self._occupied.shape, -1, dtype=np.int64)
-            index[tuple(voxels.T)] = np.arange(len(voxels))
+            voxels = coordinates(dilated(self._occupied, 1) if grown else self._occupied)
+            index = np.zeros(self._occupied.shape, dtype=np.int32)  # untouched pages are never allocated
+            index[tuple(voxels.T)] = np.arange(1, len(voxels) + 1, dtype=np.int32)
             heads, tails, lengths = neighbour_edges(voxels, self._occupied.shape)
             graph = sparse.coo_matrix((self._h * lengths, (heads, tails)), shape=(len(voxels), len(voxels))).tocsr()
             self._graphs[grown] = (index, self._origin + self._h * voxels, graph)
@@ -545,7 +548,7 @@ class _SupportBridge:
         local = np.round((points_mm - self._origin) / self._h).astype(np.int64)
         ok = np.all((local >= 0) & (local < np.array(index.shape)), axis=1)
         found = np.full(len(points_mm), -1, dtype=np.int64)
-        found[ok] = index[tuple(local[ok].T)]
+        found[ok] = index[tuple(local[ok].T)].astype(np.int64) - 1
         found = np.unique(found)
         return found[found >= 0]
 
@@ -577,10 +580,11 @@ def _skeleton_input(volume: np.ndarray, bridge: int) -> tuple[np.ndarray, np.nda
     grown = dilated(volume, 1)
     shell = grown & ~volume  # the empty cells next to the volume
     paths = grown if bridge == 1 else dilated(volume, bridge) if bridge else volume
-    voxels = np.argwhere(paths)
-    # a k-d tree on those few cells costs a fraction of a full 3D distance transform of the box
-    depth, _ = cKDTree(np.argwhere(shell)).query(voxels)
-    depth[shell[tuple(voxels.T)]] = 0.0
+    voxels = coordinates(paths)
+    # the nearest empty cell of a cell of the volume is one of the shell's (the volume has empty
+    # cells around it); searched ring by ring around each cell, a fraction of a k-d tree's time
+    # or a full 3D distance transform's of the box
+    depth = distance_to(shell, voxels)
     dbf = depth + 1.0 if bridge == 1 else depth if bridge == 0 else None  # one dilation adds one cell
     return paths, dbf, depth
 

@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 
 from ..errors import TreeError
 from .model import Branch, VesselTree
-from .voxels import neighbour_edges
+from .voxels import coordinates, neighbour_edges
 
 __all__ = ["SkeletonSettings", "SkeletonInfo", "tree_from_skeleton", "rerooted"]
 
@@ -151,7 +151,7 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
     skeleton = np.asarray(skeleton, dtype=bool)
     if skeleton.ndim != 3:
         raise TreeError(f"skeleton must be a 3D bool array, got shape {skeleton.shape}")
-    voxels = np.argwhere(skeleton)
+    voxels = coordinates(skeleton)
     info = SkeletonInfo(skeleton_voxels=len(voxels))
     if len(voxels) < 2:
         raise TreeError(f"the skeleton has {len(voxels)} voxel(s); a vessel tree needs at least two")

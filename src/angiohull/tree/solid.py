@@ -154,6 +154,7 @@ def default_step_mm(tree: VesselTree) -> float:
     return max(step, coarsest)
 
 
+_GROUP_VOXELS = 1 << 15  # capsules whose distances are computed together hold about this many voxels (padded)
 _BLOCK = 64  # cells per block edge of the blocked grid (measured: 32 is a quarter slower, 24 half)
 
 
@@ -172,6 +173,10 @@ class _Grid:
     lo: np.ndarray  # (S, 3) first voxel of each capsule's box
     hi: np.ndarray  # (S, 3) last voxel of it (inclusive)
     axes: tuple[np.ndarray, np.ndarray, np.ndarray]  # voxel centre coordinates per axis, float32
+    start32: np.ndarray  # (S, 3) float32 a, as capsule() computes with
+    step32: np.ndarray  # (S, 3) float32 b - a
+    scale32: np.ndarray  # (S,) float32 1 / |b - a|^2 (0 for a capsule of no length)
+    radius32: np.ndarray  # (S,) float32 radius
 
     @classmethod
     def of(cls, tree: VesselTree, step_mm: float) -> "_Grid":
@@ -186,10 +191,16 @@ class _Grid:
         lo = np.floor((np.minimum(a, b) - radius[:, None] - band - origin) / step_mm).astype(np.int64)
         hi = np.ceil((np.maximum(a, b) + radius[:, None] + band - origin) / step_mm).astype(np.int64)
         axes = tuple((origin[k] + step_mm * np.arange(shape[k])).astype(np.float32) for k in range(3))
-        return cls(a, b, radius, branch, origin, shape, step_mm, band, np.maximum(lo, 0), np.minimum(hi, shape - 1), axes)
+        step32 = (b - a).astype(np.float32)
+        length_sq = np.array([float(ab @ ab) for ab in step32])  # as capsule() computes it, capsule by capsule
+        scale32 = np.zeros(len(a), dtype=np.float32)
+        scale32[length_sq > 0] = (1.0 / length_sq[length_sq > 0]).astype(np.float32)
+        return cls(a, b, radius, branch, origin, shape, step_mm, band, np.maximum(lo, 0), np.minimum(hi, shape - 1), axes,
+                   a.astype(np.float32), step32, scale32, radius.astype(np.float32))
 
     def capsule(self, i: int, start: np.ndarray, stop: np.ndarray) -> np.ndarray:
-        """Signed distance to capsule ``i`` at the voxels ``start <= index < stop`` (float32)."""
+        """Signed distance to capsule ``i`` at the voxels ``start <= index < stop`` (float32): the
+        reference that :meth:`fill` computes many capsules at once of, operation for operation."""
         a = self.a[i].astype(np.float32)
         ab = (self.b[i] - self.a[i]).astype(np.float32)
         px = self.axes[0][start[0]:stop[0], None, None] - a[0]
@@ -201,22 +212,67 @@ class _Grid:
             px, py, pz = px - t * ab[0], py - t * ab[1], pz - t * ab[2]
         return np.sqrt(px * px + py * py + pz * pz) - np.float32(self.radius[i])
 
+    def capsules(self, index: np.ndarray, first: np.ndarray, size: np.ndarray) -> np.ndarray:
+        """Signed distance to each capsule ``index[j]`` at the voxels ``first[j] <= index <
+        first[j] + size[j]``, padded to the largest size: ``(J, X, Y, Z)`` float32, the same numbers
+        as :meth:`capsule` (the same float32 operations in the same order) where not padding."""
+        axes = []
+        for k in range(3):
+            voxel = np.minimum(first[:, k, None] + np.arange(size[:, k].max())[None, :], self.shape[k] - 1)
+            axes.append(self.axes[k][voxel] - self.start32[index, k, None])
+        ab = self.step32[index]
+        shape_x, shape_y, shape_z = (slice(None), slice(None), None, None), (slice(None), None, slice(None), None), \
+            (slice(None), None, None, slice(None))
+        t = (axes[0] * ab[:, 0, None])[shape_x] + (axes[1] * ab[:, 1, None])[shape_y]
+        t = t + (axes[2] * ab[:, 2, None])[shape_z]
+        t *= self.scale32[index, None, None, None]
+        np.clip(t, 0.0, 1.0, out=t)  # 0 for a capsule of no length (scale 0): its points stay as they are
+        px = axes[0][shape_x] - t * ab[:, 0, None, None, None]
+        py = axes[1][shape_y] - t * ab[:, 1, None, None, None]
+        pz = axes[2][shape_z] - t * ab[:, 2, None, None, None]
+        px *= px
+        py *= py
+        pz *= pz
+        px += py
+        px += pz
+        distance = np.sqrt(px, out=px)
+        distance -= self.radius32[index, None, None, None]
+        return distance
+
     def fill(self, start: np.ndarray, stop: np.ndarray, capsules) -> tuple[np.ndarray, np.ndarray]:
         """Signed distance (``band`` where no capsule is within it) and 1 + owning branch (0 there)
         on the voxels ``start <= index < stop``, from the given capsules (in order: of equally
-        distant capsules the first owns the voxel)."""
+        distant capsules the first owns the voxel). The distances are computed for groups of
+        capsules at once (:meth:`capsules`; a few hundred thousand numbers a group), then merged
+        capsule by capsule."""
         distance = np.full(tuple(stop - start), np.float32(self.band), dtype=np.float32)
         owner = np.zeros(tuple(stop - start), dtype=np.uint16)
-        for i in capsules:
-            first = np.maximum(self.lo[i], start)
-            last = np.minimum(self.hi[i] + 1, stop)
-            if np.any(last <= first):
-                continue
-            d = self.capsule(int(i), first, last)
-            window = tuple(slice(f - s, l - s) for f, l, s in zip(first, last, start))
-            closer = d < distance[window]
-            np.copyto(distance[window], d, where=closer)
-            np.copyto(owner[window], np.uint16(self.branch[i] + 1), where=closer)
+        index = np.asarray(list(capsules), dtype=np.int64)
+        if len(index) == 0:
+            return distance, owner
+        first = np.maximum(self.lo[index], start)
+        size = np.minimum(self.hi[index] + 1, stop) - first
+        keep = np.all(size > 0, axis=1)
+        index, first, size = index[keep], first[keep], size[keep]
+        label = (self.branch[index] + 1).astype(np.uint16)
+        begin = 0
+        while begin < len(index):
+            end, largest = begin + 1, size[begin].copy()
+            while end < len(index):
+                grown = np.maximum(largest, size[end])
+                if (end + 1 - begin) * int(np.prod(grown)) > _GROUP_VOXELS:
+                    break
+                largest, end = grown, end + 1
+            d = self.capsules(index[begin:end], first[begin:end], size[begin:end])
+            for j in range(begin, end):
+                low = first[j] - start
+                window = (slice(low[0], low[0] + size[j, 0]), slice(low[1], low[1] + size[j, 1]),
+                          slice(low[2], low[2] + size[j, 2]))
+                dj = d[j - begin, :size[j, 0], :size[j, 1], :size[j, 2]]
+                closer = dj < distance[window]
+                np.copyto(distance[window], dj, where=closer)
+                np.copyto(owner[window], label[j], where=closer)
+            begin = end
         return distance, owner
 
 
@@ -282,12 +338,22 @@ def _welded(vertices: np.ndarray, faces: np.ndarray, grid: _Grid, size: int) -> 
     if len(candidates):
         _, first, inverse = np.unique(vertices[candidates], axis=0, return_index=True, return_inverse=True)
         index[candidates] = candidates[first][inverse.ravel()]
-    used, compact = np.unique(index, return_inverse=True)
-    faces = compact[index[faces]].reshape(-1, 3)
+    # every copy points at the first (lowest) of its kind, itself kept: the kept vertices in order
+    kept = index == np.arange(len(index))
+    used = np.flatnonzero(kept)
+    faces = (np.cumsum(kept) - 1)[index[faces]].reshape(-1, 3)
     mesh = SurfaceMesh(grid.origin + grid.step * vertices[used], faces, grid.step)
-    if mesh.volume_mm3 < 0:  # faces wound inward: turn them
+    if _signed_volume(mesh.vertices_mm, mesh.faces) < 0:  # faces wound inward: turn them
         mesh = SurfaceMesh(mesh.vertices_mm, mesh.faces[:, ::-1].copy(), grid.step)
     return mesh
+
+
+def _signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Six times the enclosed volume (positive for outward normals): the sum of ``a . (b x c)``
+    over the faces, written out per coordinate (a few times faster than ``np.cross``)."""
+    a, b, c = (vertices[faces[:, k]].T for k in range(3))
+    return float(np.sum(a[0] * (b[1] * c[2] - b[2] * c[1]) + a[1] * (b[2] * c[0] - b[0] * c[2])
+                        + a[2] * (b[0] * c[1] - b[1] * c[0])))
 
 
 def _step(tree: VesselTree, step_mm: float | None) -> float:
