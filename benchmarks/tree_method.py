@@ -180,6 +180,7 @@ def main() -> None:
     parser.add_argument("--timing-only", action="store_true", help="only the time section (no pool, no scores)")
     args = parser.parse_args()
     start = time.perf_counter()
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     tasks = [] if args.timing_only else [(kind, i, setup) for setup in SETUPS for kind in ("rca", "left")
                                          for i in range(args.trees)]
     peer_folder = SHARED / "benchmarks" / "peer-synthetic"
@@ -191,7 +192,6 @@ def main() -> None:
     rows = rows if rows else []
     timing = _timing(args.repeats)
     elapsed = time.perf_counter() - start
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     command = "--timing-only" if args.timing_only else f"--trees {args.trees} --workers {args.workers}"
     lines = ["# Results: the tree method against the visual hull", "",
              f"Produced by `OPENBLAS_NUM_THREADS=1 python benchmarks/tree_method.py {command}` on {datetime.date.today()}, commit {commit}, {platform.machine()} with "
