@@ -560,9 +560,14 @@ class _SupportBridge:
             sources, targets = self._lookup(index, part_mm), self._lookup(index, tree_mm)
             if len(sources) == 0 or len(targets) == 0:
                 continue
-            distance, predecessors, _ = dijkstra(graph, directed=False, indices=sources, min_only=True,
-                                                 limit=self._limit, return_predecessors=True)
-            best = targets[np.argmin(distance[targets])]
+            # most gaps are short: search a quarter of the reach first (the nearest target within it
+            # is the nearest of all), the whole reach only when none lies that close
+            for limit in (0.25 * self._limit, self._limit):
+                distance, predecessors, _ = dijkstra(graph, directed=False, indices=sources, min_only=True,
+                                                     limit=limit, return_predecessors=True)
+                best = targets[np.argmin(distance[targets])]
+                if np.isfinite(distance[best]):
+                    break
             if not np.isfinite(distance[best]):
                 continue
             path = [int(best)]
