@@ -370,7 +370,7 @@ def test_a_child_in_the_stub_continues_unless_an_earlier_child_carries_more(earl
     parent = Branch(polyline(arcs(30.0, 0.5)), 1.5, name="parent")
     t = math.radians(60)
     earlier = Branch(polyline(arcs(earlier_mm, 0.5), (math.cos(t), math.sin(t), 0), (20, 0, 0)), 1.2, 0, 40)
-    late = Branch(polyline(arcs(20.0, 0.5), (1, 0.1, 0), (29, 0, 0)), 1.2, 0, 58)
+    late = Branch(polyline(arcs(20.0, 0.5), (1, 0, 0), (29, 0, 0)), 1.2, 0, 58)
     tree = VesselTree((parent, earlier, late))
     assert tree_vessels(tree).continues_into == ({0: 2} if continues else {})
     bifs = analyse_tree(tree, settings=NO_VIEWS).bifurcations
