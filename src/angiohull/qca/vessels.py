@@ -87,13 +87,6 @@ class TreeVessels:
     def of(self, branch: int) -> Vessel:
         return self.vessels[self.vessel_of[branch]]
 
-    def continued_by(self, branch: int) -> int | None:
-        """The parent whose vessel ``branch`` continues, or None."""
-        for parent, child in self.continues_into.items():
-            if child == branch:
-                return parent
-        return None
-
 
 def _point_at(points: np.ndarray, arc: np.ndarray, s: float) -> np.ndarray:
     return np.array([np.interp(s, arc, points[:, k]) for k in range(3)])
