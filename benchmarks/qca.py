@@ -17,10 +17,14 @@ Runs, with the same defaults for every case (:class:`angiohull.qca.QcaSettings()
     a reported lesion is matched one to one to the nearest true one whose MLD point lies within
     5 mm of its own; the errors are reported minus true; an unmatched reported lesion is false;
   - every true branch: the length of the reconstructed tree's path between its points nearest
-    to the true branch's first and last points, against the true branch's length;
-  - every true bifurcation matched (5 mm, one to one) to a reconstructed one: each true arm is
-    paired with the reconstructed arm whose 5 mm chord ends nearest its own, and the proximal and
-    distal angles of each side branch are compared.
+    to the true branch's first and last points, against the true branch's length, and where along
+    it the error lies (its first and last 8 mm, and between);
+  - every true bifurcation matched (5 mm, one to one) to a reconstructed one: the true arms are
+    paired one to one with the reconstructed arms whose chords (the stretch each direction is
+    measured over) lie nearest theirs (least total distance of both chord ends, at most 10 mm
+    apart), and the proximal and distal angles of each side branch are compared; a true angle
+    whose bifurcation was not found, or whose arms found no partner with a direction, counts as
+    not measured.
 
 Writes a Markdown report (``--output``) and the raw rows beside it (``.json``), and prints both.
 
@@ -50,6 +54,7 @@ LEVELS = ("simple", "moderate", "tortuous")
 VIEWS3 = ("RAO 30 CRA 30", "LAO 60 CRA 30", "RAO 30 CAU 30")
 SETUPS = (("3 views", "masks"), ("3 views", "segmented"), ("2 views", "masks"), ("2 views", "segmented"))
 MATCH_MM = 5.0
+END_MM = 8.0  # a branch length's error is split into its first and last END_MM and the rest between
 CAAS = {  # CAAS 3D bifurcation QCA on phantoms (EuroIntervention 2012), error mean +- sd
     "mld_mm": (0.013, 0.131), "reference_diameter_mm": (-0.052, 0.039), "diameter_stenosis_pct": (-1.08, 5.13),
     "bifurcation_angle_deg": (-1.3, 5.0), "length_mm": (0.15, 0.26)}
@@ -138,6 +143,11 @@ def _tree_graph(tree):
 
 
 def _branch_lengths(truth, rec) -> list[dict]:
+    """Per true branch: the reconstructed tree's path length between its points nearest to the true
+    branch's first and last points, and where the error lies along it: the path's part up to its
+    point nearest to the true point ``END_MM`` from the start, its part from there to its point
+    nearest to the true point ``END_MM`` before the tip, and the rest (each minus its true length;
+    ``END_MM`` is a third of shorter branches)."""
     from scipy.sparse.csgraph import dijkstra
     from scipy.spatial import cKDTree
 
@@ -146,16 +156,21 @@ def _branch_lengths(truth, rec) -> list[dict]:
     out = []
     for b in truth.branches:
         _, (i, j) = kd.query(b.points_mm[[0, -1]])
-        length = float(dijkstra(graph, indices=int(i))[int(j)])
-        out.append({"name": b.name, "true_mm": b.length_mm, "measured_mm": length})
+        distance, predecessor = dijkstra(graph, indices=int(i), return_predecessors=True)
+        path = [int(j)]
+        while path[-1] != int(i):
+            path.append(int(predecessor[path[-1]]))
+        p = points[path[::-1]]
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+        arc, true_length = b.arc_length_mm, b.length_mm
+        end = min(END_MM, true_length / 3.0)
+        marks = [int(np.argmin(np.linalg.norm(p - np.array([np.interp(s, arc, b.points_mm[:, k]) for k in range(3)]),
+                                              axis=1))) for s in (end, true_length - end)]
+        out.append({"name": b.name, "true_mm": true_length, "measured_mm": float(distance[int(j)]),
+                    "start_error_mm": float(along[marks[0]] - end),
+                    "inner_error_mm": float(along[marks[1]] - along[marks[0]] - (true_length - 2 * end)),
+                    "tip_error_mm": float(along[-1] - along[marks[1]] - end)})
     return out
-
-
-def _arm_end(tree, arm, arm_mm: float) -> np.ndarray:
-    b = tree.branches[arm.branch]
-    arc = b.arc_length_mm
-    end = max(arm.start_mm - arm_mm, 0.0) if arm.reverse else min(arm.start_mm + arm_mm, float(arc[-1]))
-    return np.array([np.interp(end, arc, b.points_mm[:, k]) for k in range(3)])
 
 
 def _angle(a, b) -> float:
@@ -164,28 +179,45 @@ def _angle(a, b) -> float:
     return math.degrees(math.acos(float(np.clip(np.dot(a, b), -1.0, 1.0))))
 
 
-def _bifurcation_angles(truth_tree, truth_qca, rec_tree, rec_qca) -> list[dict]:
-    arm_mm = truth_qca.settings.bifurcation.arm_mm
+def _paired_arms(true_arms, rec_arms) -> dict[int, int]:
+    """True arm -> reconstructed arm, one to one: least total distance between their chords' ends
+    (:attr:`angiohull.qca.bifurcations.Arm.near_mm`, ``far_mm``), pairs within ``2 * MATCH_MM``."""
+    from scipy.optimize import linear_sum_assignment
+
+    cost = np.full((len(true_arms), len(rec_arms)), 1e6)
+    for i, t in enumerate(true_arms):
+        for j, r in enumerate(rec_arms):
+            if t.near_mm is not None and r.near_mm is not None:
+                cost[i, j] = (np.linalg.norm(np.subtract(t.near_mm, r.near_mm))
+                              + np.linalg.norm(np.subtract(t.far_mm, r.far_mm)))
+    rows, cols = linear_sum_assignment(cost)
+    return {int(i): int(j) for i, j in zip(rows, cols) if cost[i, j] <= 2.0 * MATCH_MM}
+
+
+def _bifurcation_angles(truth_qca, rec_qca) -> list[dict]:
     t_pos = np.array([b.position_mm for b in truth_qca.bifurcations]).reshape(-1, 3)
     r_pos = np.array([b.position_mm for b in rec_qca.bifurcations]).reshape(-1, 3)
     out = []
-    for ti, ri, dist in _match(t_pos, r_pos, MATCH_MM):
-        tb, rb = truth_qca.bifurcations[ti], rec_qca.bifurcations[ri]
-        r_ends = np.array([_arm_end(rec_tree, a, arm_mm) for a in rb.arms])
-
-        def paired(arm):
-            k = int(np.argmin(np.linalg.norm(r_ends - _arm_end(truth_tree, arm, arm_mm), axis=1)))
-            return rb.arms[k]
-
-        roles = {a.role: a for a in tb.arms if a.role != "side"}
-        for side in (a for a in tb.arms if a.role == "side"):
-            rs = paired(side)
+    matched = {ti: (ri, dist) for ti, ri, dist in _match(t_pos, r_pos, MATCH_MM)}
+    for ti, tb in enumerate(truth_qca.bifurcations):
+        roles = {a.role: k for k, a in enumerate(tb.arms) if a.role != "side"}
+        if ti in matched:
+            ri, dist = matched[ti]
+            rb = rec_qca.bifurcations[ri]
+            pairs = _paired_arms(tb.arms, rb.arms)
+        else:
+            rb, dist, pairs = None, math.nan, {}
+        for k, side in enumerate(tb.arms):
+            if side.role != "side":
+                continue
             for kind, other_role in (("distal", "distal main"), ("proximal", "proximal main")):
                 if other_role not in roles:
                     continue
-                ro = paired(roles[other_role])
-                true_angle = _angle(roles[other_role].direction, side.direction)
-                rec_angle = _angle(ro.direction, rs.direction) if ro is not rs else math.nan
+                true_angle = _angle(tb.arms[roles[other_role]].direction, side.direction)
+                if not math.isfinite(true_angle):
+                    continue
+                o, s = pairs.get(roles[other_role]), pairs.get(k)
+                rec_angle = math.nan if o is None or s is None else _angle(rb.arms[o].direction, rb.arms[s].direction)
                 out.append({"kind": kind, "true_deg": true_angle, "measured_deg": rec_angle, "distance_mm": dist})
     return out
 
@@ -239,7 +271,7 @@ def _run_tree(task: tuple[str, int]) -> list[dict]:
                        np.array([f["point_mm"] for f in found]).reshape(-1, 3), MATCH_MM)
         rows.append({**row, "found_lesions": found, "pairs": pairs,
                      "branch_lengths": _branch_lengths(truth, result.tree),
-                     "angles": _bifurcation_angles(truth, truth_qca, result.tree, qca),
+                     "angles": _bifurcation_angles(truth_qca, qca),
                      "reconstruct_s": t1 - t0, "qca_s": t2 - t1})
     return rows
 
@@ -294,10 +326,14 @@ def summarise(rows: list[dict]) -> dict:
             "branch_length_mm": _stats(length_err),
             "branch_length_abs_pct": _stats([100.0 * abs(b["measured_mm"] - b["true_mm"]) / b["true_mm"] for b in lengths]),
             "branch_length_within": float(np.mean(within)) if within else math.nan, "branches": len(lengths),
+            **{f"branch_length_{part}_error_mm": {"median": float(np.median([b[f"{part}_error_mm"] for b in lengths])),
+                                                   "mae": float(np.mean([abs(b[f"{part}_error_mm"]) for b in lengths]))}
+               if lengths else {"median": math.nan, "mae": math.nan} for part in ("start", "inner", "tip")},
             "distal_angle_deg": _stats([a["measured_deg"] - a["true_deg"] for a in angles if a["kind"] == "distal"]),
             "proximal_angle_deg": _stats([a["measured_deg"] - a["true_deg"] for a in angles if a["kind"] == "proximal"]),
             "angles_within_5": float(np.mean([abs(a["measured_deg"] - a["true_deg"]) <= 5.0 for a in angles
                                               if math.isfinite(a["measured_deg"])])) if angles else math.nan,
+            "angles_measured": sum(math.isfinite(a["measured_deg"]) for a in angles), "angles_true": len(angles),
             "reconstruct_s": float(np.median([r["reconstruct_s"] for r in sel])) if sel else math.nan,
             "qca_s": float(np.median([r["qca_s"] for r in sel])) if sel else math.nan,
         }
@@ -339,11 +375,16 @@ def markdown(summary: dict, meta: dict) -> str:
     row("branch length error (mm)", "", [_ms(summary[k]["branch_length_mm"], 2) for k in keys])
     row("branch length within 1 % or 1 mm", "all", [f"{summary[k]['branch_length_within']:.3f} of {summary[k]['branches']}"
                                                      for k in keys])
+    row(f"branch length error: first {END_MM:g} mm / between / last {END_MM:g} mm, median (MAE) (mm)", "",
+        [" / ".join(f"{summary[k][f'branch_length_{part}_error_mm']['median']:+.2f} "
+                    f"({summary[k][f'branch_length_{part}_error_mm']['mae']:.2f})" for part in ("start", "inner", "tip"))
+         for k in keys])
     row("distal (bifurcation) angle error (deg)", "within 5", [_ms(summary[k]["distal_angle_deg"], 1) + f" (MAE {summary[k]['distal_angle_deg']['mae']:.1f}, n {summary[k]['distal_angle_deg']['n']})"
                                                              for k in keys], "-1.3 ± 5.0")
     row("proximal angle error (deg)", "within 5", [_ms(summary[k]["proximal_angle_deg"], 1) + f" (MAE {summary[k]['proximal_angle_deg']['mae']:.1f})"
                                                   for k in keys])
     row("angles within 5 deg", "", [f"{summary[k]['angles_within_5']:.3f}" for k in keys])
+    row("angles measured / true", "", [f"{summary[k]['angles_measured']} / {summary[k]['angles_true']}" for k in keys])
     row("reconstruction / QCA time, median (s)", "", [f"{summary[k]['reconstruct_s']:.2f} / {summary[k]['qca_s']:.3f}" for k in keys])
     lines += ["", "Missed stenoses >= 50 % (tree:branch:true %DS):", ""]
     for k in keys:

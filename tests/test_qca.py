@@ -23,6 +23,7 @@ from angiohull.geometry import CArmGeometry, parse_clinical_angles
 from angiohull.qca import (BRANCH_COLUMNS, LESION_COLUMNS, ProfileSettings, QcaSettings, ViewMapSettings,
                            analyse_bifurcations, analyse_tree, branch_profile, foreshortening, segment_view_map,
                            view_map, window_lesion_length_mm)
+from angiohull.qca.vessels import VesselSettings, tree_vessels
 from angiohull.qca.views import carm_for, carm_frames, view_report
 from angiohull.tree import Branch, VesselTree
 
@@ -298,6 +299,85 @@ def test_side_branch_points_inside_the_parent_are_not_analysed(gap_mm, junction_
     assert profile.reference.diameter_at_start_mm == pytest.approx(2.4, abs=1e-9)
     assert not profile.reference.kept[~profile.analysed].any()
     assert branch_profile(tree, 0).analysed.all()  # the root has no junction
+
+
+# -- 4b. vessels: a branch that runs into a stub and goes on as its child --------------------------
+
+def split_tube(kind, s, extent, split_mm, stub_mm, stub_deg=40.0, step=0.25, c=30.0):
+    """The tube of test_single_stenosis_on_a_taper cut in two at ``split_mm``: the parent runs on
+    past the cut into a straight stub of ``stub_mm`` (``stub_deg`` off the axis, the radius of the
+    cut), the rest of the tube is its child."""
+    a = arcs(60.0, step)
+    d = taper(a) * window(kind, a - c, s, extent)
+    points = polyline(a)
+    j = int(round(split_mm / step))
+    t = math.radians(stub_deg)
+    stub = polyline(arcs(stub_mm, step)[1:], (math.cos(t), math.sin(t), 0.0), points[j])
+    parent = Branch(np.vstack([points[:j + 1], stub]), 0.5 * np.concatenate([d[:j + 1], np.full(len(stub), d[j])]),
+                    name="parent")
+    child = Branch(points[j:], 0.5 * d[j:], 0, j, name="child")
+    return VesselTree((parent, child)), VesselTree((Branch(points, 0.5 * d, name="tube"),)), a[j]
+
+
+@pytest.mark.parametrize("split_mm", [24.0, 30.0, 33.0, 45.0])
+@pytest.mark.parametrize("kind", ["cosine", "gaussian"])
+def test_a_vessel_cut_into_a_stub_and_a_child_reads_as_one(kind, split_mm):
+    # a 1.5 mm stub (about one radius): the child continues the parent; the analysis is that of
+    # the uncut tube, the lesion listed under the branch of its MLD in that branch's arc lengths
+    tree, whole, cut = split_tube(kind, 0.6, 12.0, split_mm, 1.5)
+    vessels = tree_vessels(tree)
+    assert vessels.continues_into == {0: 1} and len(vessels.vessels) == 1
+    np.testing.assert_allclose(vessels.vessels[0].points_mm, whole.root.points_mm, atol=1e-12)
+    (expected,) = branch_profile(whole, 0).lesions
+    result = analyse_tree(tree, settings=NO_VIEWS)
+    (les,) = result.lesions
+    mld_branch = 0 if expected.mld_arc_mm <= cut + 1e-9 else 1
+    offset = 0.0 if mld_branch == 0 else cut
+    assert les.branch == mld_branch
+    assert les.mld_arc_mm == pytest.approx(expected.mld_arc_mm - offset, abs=1e-9)
+    assert les.start_mm == pytest.approx(expected.start_mm - offset, abs=1e-9)
+    assert les.end_mm == pytest.approx(expected.end_mm - offset, abs=1e-9)
+    for name in ("mld_mm", "reference_diameter_mm", "diameter_stenosis_pct", "length_mm"):
+        assert getattr(les, name) == pytest.approx(getattr(expected, name), abs=1e-9)
+    assert les.mld_point_mm == expected.mld_point_mm
+    # each branch's reference is the vessel's line in its own arc lengths; the stub is not analysed
+    whole_ref = branch_profile(whole, 0).reference
+    for index, shift in ((0, 0.0), (1, cut)):
+        profile = result.branches[index].profile
+        assert profile.vessel == (0, 1)
+        assert profile.reference.slope_mm_per_mm == pytest.approx(whole_ref.slope_mm_per_mm, abs=1e-12)
+        assert profile.reference(np.array([0.0]))[0] == pytest.approx(whole_ref(np.array([shift]))[0], abs=1e-9)
+    assert not result.branches[0].profile.analysed[int(round(split_mm / 0.25)) + 1:].any()
+    assert result.bifurcations == ()  # the cut is no bifurcation
+    assert branch_profile(tree, mld_branch).lesions == (les,)
+
+
+def test_a_stub_longer_than_its_limit_is_a_vessel_of_its_own():
+    # 7 mm past the cut is more than 4 radii (the radius there is about 1.1 mm): two branches
+    tree, _, _ = split_tube("cosine", 0.6, 12.0, 45.0, 7.0)
+    assert tree_vessels(tree).continues_into == {}
+    assert tree_vessels(tree, VesselSettings(stub_radii=8.0)).continues_into == {0: 1}
+    (bif,) = analyse_tree(tree, settings=NO_VIEWS).bifurcations
+    assert [arm.role for arm in bif.arms] == ["proximal main", "distal main", "side"]
+
+
+@pytest.mark.parametrize("earlier_mm, continues", [(60.0, False), (5.0, True)])
+def test_a_child_in_the_stub_continues_unless_an_earlier_child_carries_more(earlier_mm, continues):
+    # parent 30 mm along x (diameter 3); a child at 60 degrees leaves 10 mm before its end, another
+    # (20 mm, straight on) 1 mm before it: the latter continues the parent unless the earlier one
+    # carries more of the tree (then the parent's last 10 mm are a second path through a wide
+    # vessel, not a stub)
+    parent = Branch(polyline(arcs(30.0, 0.5)), 1.5, name="parent")
+    t = math.radians(60)
+    earlier = Branch(polyline(arcs(earlier_mm, 0.5), (math.cos(t), math.sin(t), 0), (20, 0, 0)), 1.2, 0, 40)
+    late = Branch(polyline(arcs(20.0, 0.5), (1, 0, 0), (29, 0, 0)), 1.2, 0, 58)
+    tree = VesselTree((parent, earlier, late))
+    assert tree_vessels(tree).continues_into == ({0: 2} if continues else {})
+    bifs = analyse_tree(tree, settings=NO_VIEWS).bifurcations
+    assert [b.parent_point for b in bifs] == ([40] if continues else [40, 58])
+    (first, *_) = bifs
+    (side,) = first.sides
+    assert side.side_branch == 1 and side.distal_angle_deg == pytest.approx(60.0, abs=1e-6)
 
 
 # -- 5. bifurcation angles and Medina --------------------------------------------------------------

@@ -688,7 +688,7 @@ def _draw_profile(ax: Any, branch: Any) -> None:
     ax.plot(arc, shown, color=_PROFILE_COLOUR, linewidth=1.1, label="diameter", zorder=3)
     if not analysed.all():
         ax.scatter(arc[~analysed], diameter[~analysed], s=6, color="0.6", linewidths=0, zorder=2,
-                   label="not analysed (inside the parent)")
+                   label="not analysed (inside the parent, or a stub)")
     reference = np.where(analysed, p.reference_mm(), np.nan)
     ax.plot(arc, reference, color="0.15", linestyle="--", linewidth=1.0, label="reference", zorder=4)
     top = float(np.nanmax(np.concatenate([diameter, reference[np.isfinite(reference)]])))

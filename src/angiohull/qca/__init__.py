@@ -1,6 +1,8 @@
 """Quantitative coronary analysis (3D QCA) of a vessel tree: lengths, diameters, stenoses,
 bifurcation angles, foreshortening, overlap and working views.
 
+* :mod:`.vessels`: the vessels a tree's branches make up (a branch that runs into a stub and goes
+  on as its child is one vessel with it);
 * :mod:`.profile`: a branch's diameter profile, its healthy taper (the reference), lesions, minimal
   lumen diameter, percent diameter stenosis, lesion length;
 * :mod:`.bifurcations`: proximal and distal angles, Medina flags;
@@ -15,15 +17,17 @@ arrays out, no files (the CLI writes ``qca.json``, ``lesions.csv`` and ``branche
 from __future__ import annotations
 
 from .analysis import (BRANCH_COLUMNS, LESION_COLUMNS, BranchQca, QcaResult, QcaSettings, analyse_tree,
-                       branch_profile, segment_view_map)
+                       branch_profile, segment_view_map, vessel_profiles)
 from .bifurcations import BifurcationAnalysis, BifurcationSettings, analyse_bifurcations
 from .profile import DiameterProfile, Lesion, ProfileSettings, ReferenceFit, reference_fit, window_lesion_length_mm
+from .vessels import TreeVessels, Vessel, VesselSettings, tree_vessels
 from .views import ViewMap, ViewMapSettings, foreshortening, view_map
 
 __all__ = [
-    "analyse_tree", "branch_profile", "segment_view_map", "QcaSettings", "QcaResult", "BranchQca",
+    "analyse_tree", "branch_profile", "vessel_profiles", "segment_view_map", "QcaSettings", "QcaResult", "BranchQca",
     "LESION_COLUMNS", "BRANCH_COLUMNS",
     "ProfileSettings", "DiameterProfile", "ReferenceFit", "Lesion", "reference_fit", "window_lesion_length_mm",
+    "VesselSettings", "Vessel", "TreeVessels", "tree_vessels",
     "BifurcationSettings", "BifurcationAnalysis", "analyse_bifurcations",
     "ViewMapSettings", "ViewMap", "view_map", "foreshortening",
 ]

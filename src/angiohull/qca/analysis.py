@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -12,11 +12,12 @@ from ..errors import QcaError
 from ..geometry import Projection
 from ..tree import VesselTree
 from .bifurcations import BifurcationAnalysis, BifurcationSettings, analyse_bifurcations
-from .profile import DiameterProfile, Lesion, ProfileSettings, find_lesions, reference_fit
+from .profile import DiameterProfile, Lesion, ProfileSettings, ReferenceFit, find_lesions, reference_fit
+from .vessels import TreeVessels, Vessel, VesselSettings, tree_vessels
 from .views import ViewMap, ViewMapSettings, view_map, view_report
 
-__all__ = ["QcaSettings", "BranchQca", "QcaResult", "analyse_tree", "branch_profile", "LESION_COLUMNS",
-           "BRANCH_COLUMNS"]
+__all__ = ["QcaSettings", "BranchQca", "QcaResult", "analyse_tree", "branch_profile", "vessel_profiles",
+           "LESION_COLUMNS", "BRANCH_COLUMNS"]
 
 LESION_COLUMNS = ("lesion", "branch", "branch_name", "x_mm", "y_mm", "z_mm", "mld_mm", "reference_diameter_mm",
                   "diameter_stenosis_pct", "area_stenosis_pct", "lesion_length_mm", "start_mm", "end_mm",
@@ -32,6 +33,7 @@ class QcaSettings:
     """Every setting of the analysis (the same defaults for every tree)."""
 
     profile: ProfileSettings = field(default_factory=ProfileSettings)
+    vessels: VesselSettings = field(default_factory=VesselSettings)
     bifurcation: BifurcationSettings = field(default_factory=BifurcationSettings)
     view_map: ViewMapSettings = field(default_factory=ViewMapSettings)
     lesion_view_margin_mm: float = 5.0  # a lesion's working view covers it and this much either side
@@ -55,6 +57,8 @@ class BranchQca:
         ref = self.profile.reference
         lesions = self.profile.lesions
         analysed = self.profile.arc_mm[self.profile.analysed]
+        if not analysed.size:
+            ref = None
         return {"branch": self.index, "name": self.name, "parent": self.parent, "parent_point": self.parent_point,
                 "length_mm": self.length_mm, "mean_diameter_mm": self.mean_diameter_mm,
                 "min_diameter_mm": self.min_diameter_mm, "max_diameter_mm": self.max_diameter_mm,
@@ -148,30 +152,38 @@ def _check_tree(tree: Any) -> VesselTree:
     return tree
 
 
-def branch_profile(tree: VesselTree, branch: int, settings: ProfileSettings = ProfileSettings(), *,
-                   strict: bool = True) -> DiameterProfile:
-    """The diameter profile, reference and lesions of one branch (:mod:`.profile`).
+def _vessel_name(tree: VesselTree, vessel: Vessel) -> str:
+    def one(i: int) -> str:
+        name = tree.branches[i].name
+        return f"{i} ({name!r})" if name else str(i)
 
-    Raises
-    ------
-    QcaError
-        If the branch does not exist, or (``strict``) it is too short for the reference fit;
-        with ``strict=False`` such a branch gets a profile without reference or lesions, and
-        ``reason`` says why.
+    if len(vessel.branches) == 1:
+        return f"branch {one(vessel.branches[0])}"
+    return "branches " + " + ".join(one(i) for i in vessel.branches) + " (read as one vessel)"
+
+
+def vessel_profiles(tree: VesselTree, vessel: Vessel, settings: ProfileSettings = ProfileSettings(), *,
+                    strict: bool = True) -> dict[int, DiameterProfile]:
+    """The diameter profile of each branch of one vessel (:mod:`.vessels`): the reference is fitted
+    and the lesions are sought along the whole vessel, then each branch gets its own part.
+
+    A lesion is listed under the branch that holds its point of minimal lumen diameter, with its
+    arc lengths along that branch (a lesion that begins on the branch this one continues starts
+    below 0).
     """
-    tree = _check_tree(tree)
-    if isinstance(branch, bool) or not isinstance(branch, (int, np.integer)) or not 0 <= branch < tree.n_branches:
-        raise QcaError(f"branch {branch!r} does not exist: the tree has branches 0 to {tree.n_branches - 1}")
-    b = tree.branches[int(branch)]
-    arc = b.arc_length_mm
-    diameter = 2.0 * b.radius_mm
+    arc = vessel.arc_mm
+    diameter = 2.0 * vessel.radius_mm
     analysed = np.ones(arc.shape, dtype=bool)
-    if b.parent is not None:
-        parent = tree.branches[b.parent]
-        gap = float(np.linalg.norm(b.points_mm[0] - parent.points_mm[b.parent_point]))
-        analysed = arc > max(float(parent.radius_mm[b.parent_point]) - gap, 0.0)
-    what = f"branch {int(branch)} ({b.name!r})" if b.name else f"branch {int(branch)}"
+    head = tree.branches[vessel.branches[0]]
+    if head.parent is not None:
+        parent = tree.branches[head.parent]
+        gap = float(np.linalg.norm(head.points_mm[0] - parent.points_mm[head.parent_point]))
+        analysed = arc > max(float(parent.radius_mm[head.parent_point]) - gap, 0.0)
+    what = _vessel_name(tree, vessel)
     idx = np.flatnonzero(analysed)
+    fit = None
+    reason = ""
+    lesions: tuple[Lesion, ...] = ()
     try:
         if len(idx) < 2:
             raise QcaError(f"{what}: no point lies outside its parent's lumen; the reference fit needs at least "
@@ -180,13 +192,53 @@ def branch_profile(tree: VesselTree, branch: int, settings: ProfileSettings = Pr
     except QcaError as exc:
         if strict:
             raise
-        return DiameterProfile(int(branch), arc, diameter, analysed, None, (), str(exc))
-    ref = fit(arc[idx])
-    lesions = find_lesions(int(branch), arc[idx], diameter[idx], ref, b.points_mm[idx], settings)
-    kept = np.zeros(arc.shape, dtype=bool)
-    kept[idx] = fit.kept
-    fit = type(fit)(fit.diameter_at_start_mm, fit.slope_mm_per_mm, fit.noise_mm, kept)
-    return DiameterProfile(int(branch), arc, diameter, analysed, fit, lesions)
+        reason = str(exc)
+    if fit is not None:
+        lesions = find_lesions(-1, arc[idx], diameter[idx], fit(arc[idx]), vessel.points_mm[idx], settings)
+        kept = np.zeros(arc.shape, dtype=bool)
+        kept[idx] = fit.kept
+    out = {}
+    for k, index in enumerate(vessel.branches):
+        b = tree.branches[index]
+        offset = vessel.offsets_mm[k]
+        mine = vessel.owner == index
+        b_analysed = np.zeros(b.n_points, dtype=bool)
+        b_analysed[vessel.point[mine]] = analysed[mine]
+        b_fit = None
+        b_lesions: list[Lesion] = []
+        if fit is not None:
+            b_kept = np.zeros(b.n_points, dtype=bool)
+            b_kept[vessel.point[mine]] = kept[mine]
+            b_fit = ReferenceFit(fit.diameter_at_start_mm + fit.slope_mm_per_mm * offset, fit.slope_mm_per_mm,
+                                 fit.noise_mm, b_kept)
+            for les in lesions:
+                at = int(np.searchsorted(arc, les.mld_arc_mm))
+                if vessel.owner[at] == index:
+                    b_lesions.append(replace(les, branch=index, start_mm=les.start_mm - offset,
+                                             end_mm=les.end_mm - offset, mld_arc_mm=les.mld_arc_mm - offset))
+        out[index] = DiameterProfile(index, b.arc_length_mm, 2.0 * b.radius_mm, b_analysed, b_fit,
+                                     tuple(sorted(b_lesions, key=lambda les: les.start_mm)), reason,
+                                     vessel.branches)
+    return out
+
+
+def branch_profile(tree: VesselTree, branch: int, settings: ProfileSettings = ProfileSettings(), *,
+                   strict: bool = True, vessels: VesselSettings = VesselSettings()) -> DiameterProfile:
+    """The diameter profile, reference and lesions of one branch (:mod:`.profile`), read along its
+    vessel (:mod:`.vessels`, :func:`vessel_profiles`).
+
+    Raises
+    ------
+    QcaError
+        If the branch does not exist, or (``strict``) its vessel is too short for the reference fit;
+        with ``strict=False`` such a branch gets a profile without reference or lesions, and
+        ``reason`` says why.
+    """
+    tree = _check_tree(tree)
+    if isinstance(branch, bool) or not isinstance(branch, (int, np.integer)) or not 0 <= branch < tree.n_branches:
+        raise QcaError(f"branch {branch!r} does not exist: the tree has branches 0 to {tree.n_branches - 1}")
+    vessel = tree_vessels(tree, vessels).of(int(branch))
+    return vessel_profiles(tree, vessel, settings, strict=strict)[int(branch)]
 
 
 def _tortuosity(points: np.ndarray) -> dict[str, float]:
@@ -226,9 +278,13 @@ def analyse_tree(tree: VesselTree, projections: Sequence[Projection] = (), view_
         If ``tree`` is None, not a VesselTree, or has no branch long enough for a reference fit.
     """
     tree = _check_tree(tree)
+    vessels = tree_vessels(tree, settings.vessels)
+    profiles: dict[int, DiameterProfile] = {}
+    for vessel in vessels.vessels:
+        profiles.update(vessel_profiles(tree, vessel, settings.profile, strict=False))
     branches = []
     for i, b in enumerate(tree.branches):
-        profile = branch_profile(tree, i, settings.profile, strict=False)
+        profile = profiles[i]
         diameter = 2.0 * b.radius_mm
         branches.append(BranchQca(i, b.name, b.parent, b.parent_point, b.length_mm, _mean_along(diameter, b.arc_length_mm),
                                   float(diameter.min()), float(diameter.max()), profile, _tortuosity(b.points_mm)))
@@ -238,7 +294,7 @@ def analyse_tree(tree: VesselTree, projections: Sequence[Projection] = (), view_
                        f"{longest.index}, is {longest.length_mm:.1f} mm; the fit needs "
                        f"{settings.profile.min_reference_length_mm:g} mm)")
     lesions = tuple(les for b in branches for les in b.profile.lesions)
-    bifurcations = analyse_bifurcations(tree, lesions, settings.bifurcation)
+    bifurcations = analyse_bifurcations(tree, lesions, settings.bifurcation, vessels=vessels)
     maps = []
     if settings.lesion_views:
         for les in lesions:

@@ -3,16 +3,20 @@
 At a bifurcation (a parent point that branches leave from, :attr:`VesselTree.bifurcations`) the
 *arms* are the vessels that meet there:
 
-* the **proximal main** arm: back along the parent (absent when the branches leave the parent's
-  first point);
-* the **distal main** arm: the parent's continuation when the point is inside the parent, else the
-  widest child (largest mean diameter over its arm);
-* one **side** arm per other child.
+* the **proximal main** arm: back along the parent's vessel (:mod:`.vessels`; absent when the
+  branches leave the vessel's first point);
+* the **distal main** arm: the parent's vessel onwards when it carries on past the point (inside
+  the parent, or into the child it continues into), else the widest child (largest mean diameter
+  over its arm);
+* one **side** arm per other child, along the child's vessel.
 
-An arm's direction is the unit chord between its points ``o`` and ``o + arm_mm`` of arc from the
+A junction where a branch continues into its only child there is no bifurcation. An arm's
+direction is the unit chord between its points ``o`` and ``o + arm_mm`` of arc from the
 bifurcation point, where ``o`` is ``arm_offset_radii`` times the parent's radius there: the core of
 a bifurcation, where the vessels merge, says little about where each of them goes (shortened to
-what the arm holds; arms with less than ``min_arm_mm`` beyond ``o`` get no direction).
+what the arm holds; arms with less than ``min_arm_mm`` beyond ``o`` get no direction). The chord
+is 10 mm long: a reconstructed centerline wanders by about 0.2 mm, which turns a 5 mm chord by
+about 3 degrees (docs/qca.md).
 For each side arm the **proximal angle** is the angle between the proximal main and side arms'
 directions and the **distal angle** (the bifurcation angle) the angle between the distal main and
 side arms' directions, in degrees; a straight continuation of the proximal main has a proximal
@@ -24,13 +28,14 @@ angle of 180 degrees. The **Medina** triple (proximal main, distal main, side) f
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
 
 from ..tree import VesselTree
 from .profile import Lesion
+from .vessels import TreeVessels, Vessel, VesselSettings, tree_vessels
 
 __all__ = ["BifurcationSettings", "Arm", "SideBranchAngles", "BifurcationAnalysis", "analyse_bifurcations",
            "arm_direction"]
@@ -38,7 +43,7 @@ __all__ = ["BifurcationSettings", "Arm", "SideBranchAngles", "BifurcationAnalysi
 
 @dataclass(frozen=True)
 class BifurcationSettings:
-    arm_mm: float = 5.0  # chord length of an arm's direction, mm
+    arm_mm: float = 10.0  # chord length of an arm's direction, mm
     arm_offset_radii: float = 2.0  # the chord starts this many parent radii from the bifurcation point
     min_arm_mm: float = 1.0  # shorter arms get no direction
     medina_stenosis_pct: float = 50.0
@@ -56,11 +61,14 @@ class Arm:
     reverse: bool  # True: the arm runs towards decreasing arc length (the proximal main)
     direction: tuple[float, float, float] | None  # unit chord, None when the arm is too short
     mean_diameter_mm: float
+    near_mm: tuple[float, float, float] | None = None  # the chord's ends (patient frame, mm); None
+    far_mm: tuple[float, float, float] | None = None  # when the arm is too short
 
     def to_dict(self) -> dict:
         return {"role": self.role, "branch": self.branch, "start_mm": self.start_mm,
                 "direction": None if self.direction is None else list(self.direction),
-                "mean_diameter_mm": self.mean_diameter_mm}
+                "mean_diameter_mm": self.mean_diameter_mm,
+                "chord_mm": None if self.near_mm is None else [list(self.near_mm), list(self.far_mm)]}
 
 
 @dataclass(frozen=True)
@@ -119,6 +127,17 @@ def arm_direction(points_mm: np.ndarray, arc_mm: np.ndarray, start_mm: float, re
     return (chord / norm if norm > 0 else None), length
 
 
+def _arm(vessel: Vessel, start: float, reverse: bool, settings: BifurcationSettings, offset: float):
+    """(direction or None, length, near point or None, far point or None) of an arm along a vessel."""
+    direction, length = arm_direction(vessel.points_mm, vessel.arc_mm, start, reverse, settings, offset_mm=offset)
+    if direction is None:
+        return None, length, None, None
+    sign = -1.0 if reverse else 1.0
+    near = _point_at(vessel.points_mm, vessel.arc_mm, start + sign * offset)
+    far = _point_at(vessel.points_mm, vessel.arc_mm, start + sign * (offset + length))
+    return (tuple(float(x) for x in direction), length, tuple(float(x) for x in near), tuple(float(x) for x in far))
+
+
 def _angle_deg(a: tuple[float, float, float] | None, b: tuple[float, float, float] | None) -> float:
     if a is None or b is None:
         return math.nan
@@ -132,51 +151,72 @@ def _mean_diameter(radius: np.ndarray, arc: np.ndarray, start: float, length: fl
     return float(2.0 * values.mean())
 
 
-def _flagged(lesions: Sequence[Lesion], branch: int, start: float, reach: float, reverse: bool, pct: float) -> int:
+def _flagged(lesions: Sequence[Lesion], vessel: Vessel, start: float, reach: float, reverse: bool, pct: float) -> int:
+    """1 when a lesion of at least ``pct`` %DS on ``vessel`` overlaps its arc ``start`` to
+    ``start -+ reach`` (vessel arc lengths)."""
     lo, hi = (start - reach, start) if reverse else (start, start + reach)
-    return int(any(les.branch == branch and les.diameter_stenosis_pct >= pct and les.end_mm >= lo and les.start_mm <= hi
-                   for les in lesions))
+    for les in lesions:
+        if les.branch not in vessel.branches or les.diameter_stenosis_pct < pct:
+            continue
+        offset = vessel.offset_of(les.branch)
+        if les.end_mm + offset >= lo and les.start_mm + offset <= hi:
+            return 1
+    return 0
 
 
 def analyse_bifurcations(tree: VesselTree, lesions: Sequence[Lesion] = (),
-                         settings: BifurcationSettings = BifurcationSettings()) -> tuple[BifurcationAnalysis, ...]:
-    """Arms, angles and Medina flags of every bifurcation of ``tree`` (module notes)."""
-    arcs = [b.arc_length_mm for b in tree.branches]
+                         settings: BifurcationSettings = BifurcationSettings(), *,
+                         vessels: TreeVessels | VesselSettings | None = None) -> tuple[BifurcationAnalysis, ...]:
+    """Arms, angles and Medina flags of every bifurcation of ``tree`` (module notes).
+
+    ``vessels``: how the tree reads as vessels (:func:`~angiohull.qca.vessels.tree_vessels`, or
+    its settings; default ``VesselSettings()``). Arms run along vessels; a junction where a branch
+    continues into its only child there is no bifurcation.
+    """
+    if not isinstance(vessels, TreeVessels):
+        vessels = tree_vessels(tree, vessels if vessels is not None else VesselSettings())
     out = []
     for bif in tree.bifurcations:
         parent = tree.branches[bif.parent]
-        arc_p = arcs[bif.parent]
-        s0 = float(arc_p[bif.parent_point])
-        arms: list[Arm] = []
+        v = vessels.of(bif.parent)
+        p_offset = v.offset_of(bif.parent)
+        continuation = vessels.continues_into.get(bif.parent)
+        sides_of = [c for c in bif.children if c != continuation]
+        if not sides_of:
+            continue  # the branch carries on into its only child here: one vessel, no bifurcation
+        # where the bifurcation sits on the parent's vessel (a junction on the stub past the
+        # continuation's junction counts as at that junction)
+        s0 = min(p_offset + float(parent.arc_length_mm[bif.parent_point]), float(v.arc_mm[v.owner == bif.parent].max()))
         offset = settings.arm_offset_radii * float(parent.radius_mm[bif.parent_point])
 
-        def arm(role: str, index: int, start: float, reverse: bool) -> Arm:
-            branch = tree.branches[index]
-            direction, length = arm_direction(branch.points_mm, arcs[index], start, reverse, settings,
-                                              offset_mm=offset)
-            return Arm(role, index, start, reverse, None if direction is None else tuple(float(x) for x in direction),
-                       _mean_diameter(branch.radius_mm, arcs[index], start, max(length, 0.0), reverse))
+        def arm(role: str, vessel: Vessel, branch: int, start: float, reverse: bool) -> Arm:
+            direction, length, near, far = _arm(vessel, start, reverse, settings, offset)
+            return Arm(role, branch, start - vessel.offset_of(branch), reverse, direction,
+                       _mean_diameter(vessel.radius_mm, vessel.arc_mm, start, max(length, 0.0), reverse), near, far)
 
-        if bif.parent_point > 0:
-            arms.append(arm("proximal main", bif.parent, s0, True))
-        candidates = [arm("side", c, 0.0, False) for c in bif.children]
-        if bif.parent_point < parent.n_points - 1:
-            distal = arm("distal main", bif.parent, s0, False)
+        arms: list[Arm] = []
+        if s0 > v.arc_mm[0] + 1e-9:
+            arms.append(arm("proximal main", v, bif.parent, s0, True))
+        candidates = [arm("side", vessels.of(c), c, vessels.of(c).offset_of(c), False) for c in sides_of]
+        if s0 < v.arc_mm[-1] - 1e-9:  # the parent's vessel carries on
+            owner = int(v.owner[int(np.searchsorted(v.arc_mm, s0 + 1e-9))])
+            distal = arm("distal main", v, owner, s0, False)
         else:
             widest = max(range(len(candidates)), key=lambda i: candidates[i].mean_diameter_mm)
             c = candidates.pop(widest)
-            distal = Arm("distal main", c.branch, c.start_mm, c.reverse, c.direction, c.mean_diameter_mm)
+            distal = replace(c, role="distal main")
         arms.append(distal)
         arms.extend(candidates)
         proximal = arms[0] if arms[0].role == "proximal main" else None
         sides = []
         for side in candidates:
             medina = (
-                0 if proximal is None else _flagged(lesions, proximal.branch, s0, settings.medina_reach_mm, True,
+                0 if proximal is None else _flagged(lesions, v, s0, settings.medina_reach_mm, True,
                                                     settings.medina_stenosis_pct),
-                _flagged(lesions, distal.branch, distal.start_mm, settings.medina_reach_mm, False,
-                         settings.medina_stenosis_pct),
-                _flagged(lesions, side.branch, 0.0, settings.medina_reach_mm, False, settings.medina_stenosis_pct),
+                _flagged(lesions, vessels.of(distal.branch), vessels.of(distal.branch).offset_of(distal.branch)
+                         + distal.start_mm, settings.medina_reach_mm, False, settings.medina_stenosis_pct),
+                _flagged(lesions, vessels.of(side.branch), vessels.of(side.branch).offset_of(side.branch),
+                         settings.medina_reach_mm, False, settings.medina_stenosis_pct),
             )
             sides.append(SideBranchAngles(side.branch, _angle_deg(None if proximal is None else proximal.direction,
                                                                   side.direction),

@@ -123,6 +123,7 @@ class DiameterProfile:
     reference: ReferenceFit | None  # None: too short for a reference (``reason`` says why)
     lesions: tuple[Lesion, ...]
     reason: str = ""
+    vessel: tuple[int, ...] = ()  # the branches read as one vessel with this one, proximal first (:mod:`.vessels`)
 
     def reference_mm(self) -> np.ndarray:
         """(M,) reference diameter at every sample (nan without a reference)."""
