@@ -294,8 +294,8 @@ def test_reconstruct_qca_needs_a_tree(case, tmp_path, capsys, monkeypatch):
 
     real = workflow.reconstruct_study
 
-    def without_tree(study, options):
-        return replace(real(study, options), tree=None, tree_build=None, tree_error="no skeleton (test)")
+    def without_tree(study, options, **kwargs):
+        return replace(real(study, options, **kwargs), tree=None, tree_build=None, tree_error="no skeleton (test)")
 
     monkeypatch.setattr(workflow, "reconstruct_study", without_tree)
     out = tmp_path / "b"
