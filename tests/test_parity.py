@@ -19,12 +19,12 @@ def _cases(folder):
         return list(csv.DictReader(handle))
 
 
-def test_kdtree_reproduces_the_authors_scores_on_every_peer_study(peer_synthetic_dir, capsys):
-    rows = _cases(peer_synthetic_dir)
+def _kdtree_reproduces_the_authors_scores(folder, capsys, every: int):
+    rows = _cases(folder)
     assert len(rows) == 48
     failures = []
-    for row in rows:
-        code = main(["evaluate", str(peer_synthetic_dir / row["case"]), "--engine", "kdtree", "--resolution", "100", "--json"])
+    for row in rows[::every]:
+        code = main(["evaluate", str(folder / row["case"]), "--engine", "kdtree", "--resolution", "100", "--json"])
         out = capsys.readouterr().out
         assert code == 0
         scores = json.loads(out)
@@ -34,6 +34,18 @@ def test_kdtree_reproduces_the_authors_scores_on_every_peer_study(peer_synthetic
             if abs(scores[ours] - float(row[theirs])) > tolerance:
                 failures.append(f"{row['case']}: {ours} {scores[ours]:.4f} vs {theirs} {float(row[theirs]):.4f}")
     assert not failures, "\n".join(failures)
+
+
+def test_kdtree_reproduces_the_authors_scores_on_a_quarter_of_the_peer_studies(peer_synthetic_dir, capsys):
+    """Every fourth study: 000 and 004 of each view set and tortuosity level (12 of 48, about 10 s);
+    all 48 behind the slow marker (about 40 s on an idle 2-core machine: the suite's 5-minute budget).
+    By default every study's hull still meets theirs through its centerline points (the test below)."""
+    _kdtree_reproduces_the_authors_scores(peer_synthetic_dir, capsys, 4)
+
+
+@pytest.mark.slow
+def test_kdtree_reproduces_the_authors_scores_on_every_peer_study(peer_synthetic_dir, capsys):
+    _kdtree_reproduces_the_authors_scores(peer_synthetic_dir, capsys, 1)
 
 
 def test_set_means_match_the_readme_of_the_benchmark(peer_synthetic_dir):
