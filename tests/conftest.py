@@ -119,7 +119,8 @@ def ge_phantom_dir() -> Path:
 
 @pytest.fixture(scope="session")
 def quick_runs(tmp_path_factory) -> Path:
-    """Every shipped experiment run with --quick through the command line, in this process (~20 s)."""
+    """Every shipped experiment run with --quick through the command line, in this process (about 40 s
+    on one core; its users share one worker under pytest-xdist)."""
     from angiohull.cli import main
 
     root = tmp_path_factory.mktemp("quick-runs")
