@@ -134,6 +134,20 @@ def _check_inputs(projections: Sequence[Projection], masks: Sequence[np.ndarray]
     return checked, names
 
 
+def _checked_carving(threshold_px: float, engine: str, device: str) -> tuple[float, str]:
+    """The threshold and the engine's name (``auto`` resolved), or a :class:`ReconstructionError`
+    naming the bad option."""
+    threshold = check_threshold_px(threshold_px)
+    if engine not in ENGINE_CHOICES:
+        raise ReconstructionError(f"unknown engine {engine!r}; choose one of {list(ENGINE_CHOICES)}")
+    engine = AUTO_ENGINE if engine == "auto" else engine
+    if device not in ("cpu", "cuda"):
+        raise ReconstructionError(f"unknown device {device!r}; choose 'cpu' or 'cuda'")
+    if device == "cuda" and engine not in CUDA_ENGINES:
+        raise ReconstructionError(f"engine {engine!r} runs on the CPU only; with device='cuda' use one of {list(CUDA_ENGINES)}")
+    return threshold, engine
+
+
 def _empty_hull_error(outcome: CarveOutcome, names: tuple[str, ...], lattice: Lattice) -> EmptyHullError:
     order = outcome.order if outcome.order is not None else tuple(range(len(names)))
     counts = (lattice.n_points,) + outcome.survivors_per_view
@@ -228,14 +242,7 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         if empty:
             raise ReconstructionError(f"view {empty[0]!r}: the refined preset's speck removal leaves the mask empty "
                                       f"(only isolated pixels); use preset='paper'")
-    threshold = check_threshold_px(threshold_px)
-    if engine not in ENGINE_CHOICES:
-        raise ReconstructionError(f"unknown engine {engine!r}; choose one of {list(ENGINE_CHOICES)}")
-    engine = AUTO_ENGINE if engine == "auto" else engine
-    if device not in ("cpu", "cuda"):
-        raise ReconstructionError(f"unknown device {device!r}; choose 'cpu' or 'cuda'")
-    if device == "cuda" and engine not in CUDA_ENGINES:
-        raise ReconstructionError(f"engine {engine!r} runs on the CPU only; with device='cuda' use one of {list(CUDA_ENGINES)}")
+    threshold, engine = _checked_carving(threshold_px, engine, device)
     if min_views is not None:
         need = _v.positive_int(min_views, "min_views", error=ReconstructionError)
         if need > len(checked_masks):
@@ -321,12 +328,7 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
     if preset != "paper":
         raise ReconstructionError(f"preset {preset!r} applies to method 'hull' only; leave the preset at 'paper' "
                                   f"with method 'tree'")
-    threshold = check_threshold_px(threshold_px)
-    if engine not in ENGINE_CHOICES:
-        raise ReconstructionError(f"unknown engine {engine!r}; choose one of {list(ENGINE_CHOICES)}")
-    engine = AUTO_ENGINE if engine == "auto" else engine
-    if device not in ("cpu", "cuda"):
-        raise ReconstructionError(f"unknown device {device!r}; choose 'cpu' or 'cuda'")
+    threshold, engine = _checked_carving(threshold_px, engine, device)
     timings: dict[str, float] = {}
     start = time.perf_counter()
     lattice = Lattice(cube_half_edge_mm(projections) if half_edge_mm is None else half_edge_mm,
