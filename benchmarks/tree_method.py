@@ -83,10 +83,6 @@ def _case(kind: str, index: int, setup: str):
 
 
 def _run(task: tuple[str, int, str]) -> list[dict]:
-    from angiohull.metrics import scores_3d
-    from angiohull.metrics.tree import tree_scores
-    from angiohull.reconstruction import reconstruct
-
     kind, index, setup = task
     seed, case = _case(kind, index, setup)
     truth = case.tree.vessel_tree()
@@ -98,47 +94,44 @@ def _run(task: tuple[str, int, str]) -> list[dict]:
         masks = [segment_vessels(render_angiogram(case.tree.phantom, v.carm, seed * 10 + i,
                                                   AngiogramParameters(collimator_px=8)).image)
                  for i, v in enumerate(case.views)]
+    row = {"kind": kind, "index": index, "seed": seed, "setup": setup,
+           "views": [v.carm.clinical_name() for v in case.views]}
+    return _methods(row, projections, masks, case.surface_points_mm, truth)
+
+
+def _methods(row: dict, projections, masks, truth_points_mm: np.ndarray, truth_tree=None) -> list[dict]:
+    """One row per method: ``row`` plus the method, its time, Dice3D and Chamfer against
+    ``truth_points_mm``, the tree scores against ``truth_tree`` when given, or the error."""
+    from angiohull.metrics import scores_3d
+    from angiohull.metrics.tree import tree_scores
+    from angiohull.reconstruction import reconstruct
+
     rows = []
     for method, preset in METHODS:
-        row = {"kind": kind, "index": index, "seed": seed, "setup": setup, "method": method, "preset": preset,
-               "views": [v.carm.clinical_name() for v in case.views]}
+        out = {**row, "method": method, "preset": preset}
         start = time.perf_counter()
         try:
             result = reconstruct(projections, masks, method=method, preset=preset, centerlines=False)
         except Exception as exc:  # noqa: BLE001 - a failed case is a row
-            rows.append({**row, "error": f"{type(exc).__name__}: {exc}"})
+            rows.append({**out, "error": f"{type(exc).__name__}: {exc}"})
             continue
-        row["time_s"] = time.perf_counter() - start
-        s3 = scores_3d(result.vessel_points_mm, case.surface_points_mm)
-        row.update({"dice3d": s3.dice3d, "chamfer_mm": s3.chamfer_mm})
-        if result.tree is not None:
-            scores = tree_scores(result.tree, truth).as_dict()
-            row.update({k: scores[k] for k in KEYS})
-        rows.append(row)
+        out["time_s"] = time.perf_counter() - start
+        s3 = scores_3d(result.vessel_points_mm, truth_points_mm)
+        out.update({"dice3d": s3.dice3d, "chamfer_mm": s3.chamfer_mm})
+        if truth_tree is not None and result.tree is not None:
+            scores = tree_scores(result.tree, truth_tree).as_dict()
+            out.update({k: scores[k] for k in KEYS})
+        rows.append(out)
     return rows
 
 
 def _peer(folder: Path) -> list[dict]:
     """The three methods on one of the authors' studies: Dice3D and Chamfer against their gt.npy."""
-    from angiohull.metrics import scores_3d
-    from angiohull.reconstruction import reconstruct
     from angiohull.study import load_study
 
     study = load_study(folder)
-    rows = []
-    for method, preset in METHODS:
-        row = {"study": folder.name, "views": folder.name.split("_")[0], "method": method, "preset": preset}
-        start = time.perf_counter()
-        try:
-            result = reconstruct(study.projections, study.masks, method=method, preset=preset, centerlines=False)
-        except Exception as exc:  # noqa: BLE001 - a failed case is a row
-            rows.append({**row, "error": f"{type(exc).__name__}: {exc}"})
-            continue
-        row["time_s"] = time.perf_counter() - start
-        s3 = scores_3d(result.vessel_points_mm, study.ground_truth_mm)
-        row.update({"dice3d": s3.dice3d, "chamfer_mm": s3.chamfer_mm})
-        rows.append(row)
-    return rows
+    return _methods({"study": folder.name, "views": folder.name.split("_")[0]}, study.projections, study.masks,
+                    study.ground_truth_mm)
 
 
 def _timing(repeats: int) -> list[dict]:

@@ -38,7 +38,6 @@ class CenterlineGraph2D:
     half_width_px: np.ndarray  # (P,) vessel half-width at each pixel
     tangent: np.ndarray  # (P, 2) unit direction of the chain through the pixel (sign arbitrary)
     chain_of: np.ndarray  # (P,) the chain a pixel belongs to (a node pixel: one of its chains)
-    index_in_chain: np.ndarray  # (P,) its position along that chain
     chains: tuple[np.ndarray, ...]  # E arrays of pixel indices, ordered along the chain
     degree: np.ndarray  # (P,) neighbours of each pixel in the graph
     neighbour_start: np.ndarray  # (P + 1,) the neighbours of pixel i are
@@ -163,7 +162,7 @@ def _spurs(chains: list[list[int]], degree: np.ndarray, rc: np.ndarray, half_wid
 
 
 def centerline_graph(mask: np.ndarray, *, spur_widths: float = 2.0, spur_px: float = 2.0, spur_rounds: int = 2,
-                     tangent_px: int = 3, min_chain_px: float = 0.0) -> CenterlineGraph2D:
+                     tangent_px: int = 3) -> CenterlineGraph2D:
     """The centerline graph of a binary mask (module notes).
 
     Parameters
@@ -176,8 +175,6 @@ def centerline_graph(mask: np.ndarray, *, spur_widths: float = 2.0, spur_px: flo
         Rounds of spur removal.
     tangent_px : int
         Half-window of the tangents along a chain, pixels.
-    min_chain_px : float
-        Isolated chains (both ends tips) shorter than this are dropped with their pixels.
     """
     mask = np.asarray(mask, dtype=bool)
     skeleton = guo_hall_thin(mask).astype(bool)
@@ -188,11 +185,6 @@ def centerline_graph(mask: np.ndarray, *, spur_widths: float = 2.0, spur_px: flo
         half_width = np.maximum(distance[rc[:, 0], rc[:, 1]] - 0.5, 0.5)
         chains = _trace(neighbours)
         drop = _spurs(chains, degree, rc, half_width, spur_widths, spur_px)
-        if min_chain_px > 0:
-            for chain in chains:
-                if degree[chain[0]] <= 1 and degree[chain[-1]] <= 1:
-                    if np.linalg.norm(np.diff(rc[chain], axis=0), axis=1).sum() < min_chain_px:
-                        drop = np.concatenate([drop, np.array(chain, dtype=np.int64)])
         if len(drop) == 0:
             break
         skeleton = skeleton.copy()
@@ -200,7 +192,6 @@ def centerline_graph(mask: np.ndarray, *, spur_widths: float = 2.0, spur_px: flo
     isolated = degree == 0
     uv = rc[:, ::-1].astype(np.float64)
     chain_of = np.full(len(rc), -1, dtype=np.int64)
-    index_in_chain = np.zeros(len(rc), dtype=np.int64)
     tangent = np.zeros((len(rc), 2))
     arrays = []
     for e, chain in enumerate(chains):
@@ -208,7 +199,6 @@ def centerline_graph(mask: np.ndarray, *, spur_widths: float = 2.0, spur_px: flo
         arrays.append(c)
         free = chain_of[c] < 0
         chain_of[c[free]] = e
-        index_in_chain[c[free]] = np.flatnonzero(free)
         points = uv[c]
         k = np.arange(len(c))
         ahead = points[np.minimum(k + tangent_px, len(c) - 1)] - points[np.maximum(k - tangent_px, 0)]
@@ -222,5 +212,5 @@ def centerline_graph(mask: np.ndarray, *, spur_widths: float = 2.0, spur_px: flo
     start = np.concatenate([[0], np.cumsum(degree)]).astype(np.int64)
     flat = np.concatenate(neighbours).astype(np.int64) if len(neighbours) else np.zeros(0, dtype=np.int64)
     return CenterlineGraph2D(uv_px=uv, half_width_px=half_width, tangent=tangent, chain_of=chain_of,
-                             index_in_chain=index_in_chain, chains=tuple(arrays), degree=degree,
+                             chains=tuple(arrays), degree=degree,
                              neighbour_start=start, neighbour_index=flat)
