@@ -101,6 +101,37 @@ def test_tubes_of_known_axis_and_radii_come_back_from_three_exact_views(make, br
         assert np.linalg.norm(np.array(bifurcation.position_mm) - _JUNCTION) < 1.0
 
 
+def _side_branch(angle_deg):
+    """A straight trunk of radius 2.0 mm and a side branch of 1.3 mm leaving its middle point at
+    ``angle_deg`` from the trunk's direction; returns the tree and the junction."""
+    direction = np.array([np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg)), 0.15])
+    trunk = _line((-30, -3, 2), (30, 3, -2))
+    middle = len(trunk) // 2
+    side = _line(trunk[middle], trunk[middle] + 28 * direction / np.linalg.norm(direction))
+    return VesselTree((Branch(trunk, 2.0, name="trunk"),
+                       Branch(side, 1.3, parent=0, parent_point=middle, name="side"))), trunk[middle]
+
+
+@pytest.mark.parametrize("angle_deg", [35, 70, 110])
+def test_a_side_branch_starts_where_its_axis_meets_the_trunk(angle_deg):
+    # at 35 degrees the two tubes stay one blob for several millimetres and the skeleton's junction
+    # lies 4.9 mm down the trunk (measured with the junction step off); the child's axis, extended
+    # back from where it is clear of the trunk, meets the trunk within a millimetre of the truth
+    truth, junction = _side_branch(angle_deg)
+    result = _reconstructed(truth)
+    tree = result.tree
+    (bifurcation,) = [f for f in tree.bifurcations if min(tree.branches[c].length_mm for c in f.children) >= 5.0]
+    assert np.linalg.norm(np.array(bifurcation.position_mm) - junction) < 1.0
+    (child,) = bifurcation.children
+    side = tree.branches[child]
+    # the child starts on the trunk's axis and its first 10 mm run along the true direction
+    truth_side = truth.branches[1]
+    chord = side.points_mm[np.searchsorted(side.arc_length_mm, 10.0)] - side.points_mm[0]
+    true_chord = truth_side.points_mm[20] - truth_side.points_mm[0]
+    cosine = chord @ true_chord / np.linalg.norm(chord) / np.linalg.norm(true_chord)
+    assert np.degrees(np.arccos(min(cosine, 1.0))) < 5.0
+
+
 def test_the_paper_preset_gives_a_tree_too():
     truth = _straight()
     result = _reconstructed(truth, preset="paper")

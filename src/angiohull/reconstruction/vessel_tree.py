@@ -52,15 +52,28 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    branches meet, as radii swell there), that point (the stub went as a spur); when it lies more than
    ``reroot_mm`` from the root's start, the tree is traced again from there
    (:func:`angiohull.tree.skeleton.rerooted`; at an interior point the wider side carries the
-   root on and the other starts a child at the root's first point), and step 5 extends the new
+   root on and the other starts a child at the root's first point), and step 6 extends the new
    root's start to the end of the masks.
-5. **Ends.** The skeleton may stop short of a vessel's end or overshoot it where the hull ends in
+5. **Junctions.** Where two vessels leave each other they are one blob in the hull and in every
+   view, and the skeleton's junction lies where the blob's medial axis splits: displaced along the
+   parent towards where the child leans, by a few millimetres for a child at 20-50 degrees (on 24
+   generated trees from 3 views, half the junctions lay more than 1.9 mm from the truth). So each
+   child (parents first) is read from its first point clear of the parent's tube (the axes
+   farther apart than the two radii plus ``junction_margin_mm``): the line through the next
+   ``junction_fit_mm`` of it (least squares), extended back, meets the parent at the parent's
+   point nearest to it behind that start. When the line passes that point within
+   ``junction_max_miss_radii`` parent radii, crosses the parent at ``junction_min_angle_deg`` or
+   more (a child nearly along its parent meets it nowhere in particular) and the point lies within
+   ``junction_max_move_mm`` of the skeleton's junction, the child starts there, straight to its
+   clear start (the radius there held over the straight part; no view sees a cross-section where
+   the vessels merge). Same 24 trees: median junction error 0.86 mm instead of 1.90 mm.
+6. **Ends.** The skeleton may stop short of a vessel's end or overshoot it where the hull ends in
    a point. Each tip of the tree (the root's start and every branch end with no child there) moves
    along its tangent to the farthest place, within ``end_reach_radii`` radii, where the end cap
    (the point plus one radius along the tangent) still projects onto the mask in every view; a tip
    whose cap is outside a mask is cut back to where it is inside all of them (the root's start is
    only extended, so that its children's parent points stay).
-6. Radii may be smoothed along the branch (Gaussian, ``radius_smoothing_mm``) before the ends
+7. Radii may be smoothed along the branch (Gaussian, ``radius_smoothing_mm``) before the ends
    move; by default they are not: a smoothing of 0.5 mm filled stenoses in (on 16 generated trees
    with 36 stenoses, the minimal lumen diameter came out 0.070 mm too wide on average, against
    -0.004 mm unsmoothed) for a radius MAE of 0.043 instead of 0.048 mm.
@@ -111,6 +124,11 @@ class TreeSettings:
     ostium_junction_mm: float = 5.0  # ... and farther than this from where branches meet
     reroot_mm: float = 5.0  # ... and the tree is rooted there when that lies farther than this from its root
     max_bridge_mm: float = 80.0  # longest path through the support hull that joins a part to the tree
+    junction_margin_mm: float = 0.5  # a child is clear of its parent where their axes lie the two radii plus this apart
+    junction_fit_mm: float = 3.0  # the child's axis: the line through this much of it from where it is clear
+    junction_max_miss_radii: float = 1.0  # ... which must pass the parent's axis within this many parent radii,
+    junction_min_angle_deg: float = 15.0  # ... cross it at this angle or more,
+    junction_max_move_mm: float = 8.0  # ... and this close to the skeleton's junction (else the junction stays)
     skeleton: SkeletonSettings = field(default_factory=SkeletonSettings)
 
 
@@ -132,6 +150,7 @@ class TreeBuild:
     unseen_points: int  # points no view sees (radius interpolated along the branch)
     tips_moved_mm: tuple[float, ...]  # per tip: how far it moved (+ out, - back)
     rerooted_mm: float  # how far the root moved to the ostium after the fit (0: it stayed)
+    junctions_moved_mm: tuple[float, ...]  # per child whose start moved onto its parent's axis: how far (mm)
     timings_s: dict[str, float]
 
 
@@ -452,6 +471,71 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings) -> tuple["_Arra
     return _Arrays.of(tree), distance
 
 
+def _junction_on_axes(arrays: _Arrays, settings: TreeSettings) -> tuple[_Arrays, list[float]]:
+    """Each child's start moved to where its own axis, extended back, meets its parent's (module
+    notes, step 5). Returns the new arrays and, per child moved, how far its junction moved (mm)."""
+    step = settings.point_step_mm
+    n_branches = len(arrays.counts)
+    points = [arrays.points[arrays.span(b)].copy() for b in range(n_branches)]
+    radius = [arrays.radius[arrays.span(b)].copy() for b in range(n_branches)]
+    parent_points = list(arrays.parent_points)
+    fit = max(2, int(round(settings.junction_fit_mm / step)))
+    min_sine = np.sin(np.radians(settings.junction_min_angle_deg))
+    moved: list[float] = []
+    for b in range(1, n_branches):  # parents come first: a parent is final before its children move
+        p = arrays.parents[b]
+        parent, parent_radius, child, child_radius = points[p], radius[p], points[b], radius[b]
+        # the child's first point clear of the parent's tube: the axis distance exceeds both radii
+        # and the margin (before it the two vessels merge in every view and the hull)
+        gaps = np.linalg.norm(child[:, None, :] - parent[None, :, :], axis=2)
+        nearest = np.argmin(gaps, axis=1)
+        clear = gaps[np.arange(len(child)), nearest] > parent_radius[nearest] + child_radius + settings.junction_margin_mm
+        if not clear.any():
+            continue
+        first = int(np.argmax(clear))
+        piece = child[first:first + fit + 1]
+        if len(piece) < 3:
+            continue
+        centre = piece.mean(axis=0)
+        axis = np.linalg.svd(piece - centre, full_matrices=False)[2][0]
+        if axis @ (piece[-1] - piece[0]) < 0:
+            axis = -axis
+        # the parent's points behind the clear start, by their distance from the extended axis
+        relative = parent - child[first]
+        along = relative @ axis
+        miss = np.linalg.norm(relative - along[:, None] * axis, axis=1)
+        behind = np.flatnonzero(along <= 0)
+        if len(behind) == 0:
+            continue
+        k = parent_points[b]
+        j = int(behind[np.argmin(miss[behind])])
+        tangent = parent[min(j + 1, len(parent) - 1)] - parent[max(j - 1, 0)]
+        tangent_norm = float(np.linalg.norm(tangent))
+        sine = float(np.linalg.norm(np.cross(axis, tangent / tangent_norm))) if tangent_norm > 0 else 0.0
+        shift_mm = float(np.linalg.norm(parent[j] - parent[k]))
+        if (miss[j] > settings.junction_max_miss_radii * parent_radius[j] or sine < min_sine
+                or shift_mm > settings.junction_max_move_mm):
+            continue  # the axis passes the parent by, runs along it, or meets it far away: kept as it is
+        count = max(1, int(np.ceil(float(np.linalg.norm(child[first] - parent[j])) / step)))
+        start = parent[j] + (np.arange(count)[:, None] / count) * (child[first] - parent[j])
+        old = child
+        points[b] = np.concatenate([start, child[first:]])
+        radius[b] = np.concatenate([np.full(count, child_radius[first]), child_radius[first:]])
+        parent_points[b] = j
+        for c in range(b + 1, n_branches):  # grandchildren: the same place on the new polyline
+            if arrays.parents[c] == b:
+                parent_points[c] = int(np.argmin(np.linalg.norm(points[b] - old[parent_points[c]], axis=1)))
+        moved.append(shift_mm)
+    if not moved:
+        return arrays, moved
+    counts = np.array([len(x) for x in points])
+    out = _Arrays(np.concatenate(points), np.concatenate(radius), np.cumsum(counts) - counts, counts,
+                  list(arrays.parents), parent_points, list(arrays.names))
+    for b in range(1, n_branches):
+        out.points[out.starts[b]] = out.points[out.anchor(b)]
+    return out, moved
+
+
 def _move_ends(arrays: _Arrays, projections, images, settings: TreeSettings) -> tuple[VesselTree, list[float]]:
     tree = arrays.tree()
     has_child_at = {(b.parent, b.parent_point) for b in tree.branches[1:]}
@@ -673,6 +757,7 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
         arrays.smooth(0.5 * settings.smoothing_mm, step)
     _smooth_radii(arrays, settings.radius_smoothing_mm, step)
     arrays, rerooted_mm = _rooted_at_ostium(arrays, settings)
+    arrays, junctions_moved = _junction_on_axes(arrays, settings)
     timings["fit"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -680,5 +765,6 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     timings["ends"] = time.perf_counter() - start
     build = TreeBuild(skeleton=skeleton_info, points_fitted=len(arrays.points), unseen_leaves_removed=removed,
                       seen_share=tuple(float(x) for x in seen.mean(axis=1)), unseen_points=int(held.sum()),
-                      tips_moved_mm=tuple(moved), rerooted_mm=rerooted_mm, timings_s=timings)
+                      tips_moved_mm=tuple(moved), rerooted_mm=rerooted_mm,
+                      junctions_moved_mm=tuple(junctions_moved), timings_s=timings)
     return tree, build
