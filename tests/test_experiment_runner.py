@@ -163,3 +163,24 @@ def test_journal_drops_a_partial_line_and_atomic_writes_leave_no_temporaries(tmp
     assert path.read_text().endswith("\n")
     write_atomic(tmp_path / "x.txt", "hello\n")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rows.csv", "x.txt"]
+
+
+def test_invocations_that_start_within_the_same_second_are_all_recorded(tmp_path, monkeypatch):
+    import angiohull.experiments.runner as runner_module
+
+    class _FrozenClock:  # every invocation "starts" at the same second
+        @staticmethod
+        def now(tz=None):
+            from datetime import datetime
+
+            return datetime(2026, 1, 1, 12, 0, 0, tzinfo=tz)
+
+    monkeypatch.setattr(runner_module, "datetime", _FrozenClock)
+    config = load_config("general", quick=True)
+    run = tmp_path / "run"
+    for _ in range(2):
+        run_experiment(config, run, workers=1, stream=None, max_cases=1)
+    record = json.loads((run / "run.json").read_text())
+    assert [i["cases_run"] for i in record["invocations"]] == [1, 1]
+    assert len({i["started"] for i in record["invocations"]}) == 1
+

@@ -206,8 +206,9 @@ def _update_run_json(run_dir: Path, config: ExperimentConfig, total: int, rows: 
         record = json.loads(path.read_text(encoding="utf-8")) if path.exists() else {}
     except (OSError, json.JSONDecodeError):
         record = {}
-    invocations = [i for i in record.get("invocations", []) if i.get("started") != invocation["started"]]
-    invocations.append(invocation)
+    # one call per invocation: every earlier record is kept (two invocations may start within the
+    # same second; the start time is no key)
+    invocations = list(record.get("invocations", [])) + [invocation]
     record = {
         "experiment": config.name,
         "mode": config.mode,
