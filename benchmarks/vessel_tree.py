@@ -388,15 +388,16 @@ def main() -> None:
         xcat_rows = list(pool.map(_xcat, xcat))
         peer_rows = [row for rows in pool.map(_peer, peer) for row in rows]
     timing = [_timing((kind, i, args.repeats)) for kind in ("rca", "left") for i in range(args.timing_cases)]
-    imports_s = _import_cost()
+    imports_s = _import_cost() if timing else None
     lines = ["# Results: the vessel tree of a reconstruction (issue 20)", "",
-             f"Produced by `OPENBLAS_NUM_THREADS=1 python benchmarks/vessel_tree.py --trees {args.trees} --workers "
-             f"{args.workers}` on {datetime.date.today().isoformat()}, commit {commit or 'unknown'}, "
+             f"Produced by `{' '.join(['OPENBLAS_NUM_THREADS=1 python benchmarks/vessel_tree.py', *sys.argv[1:]])}` on {datetime.date.today().isoformat()}, commit {commit or 'unknown'}, "
              f"{platform.machine()} with {os.cpu_count()} cores, Python {platform.python_version()}, in "
              f"{time.perf_counter() - start:.0f} s. The same defaults for every case; the method is described in "
              f"[../vessel-tree.md](../vessel-tree.md), the scores are defined there too.", ""]
-    lines += _generated_section(generated, args.trees) + [""]
-    lines += _timing_section(timing, imports_s, args.repeats) + [""]
+    if generated:
+        lines += _generated_section(generated, args.trees) + [""]
+    if timing:
+        lines += _timing_section(timing, imports_s, args.repeats) + [""]
     if xcat_rows:
         lines += _xcat_section(xcat_rows, _xcat_truth_offsets()) + [""]
     if peer_rows:
