@@ -728,3 +728,23 @@ def test_a_shoulder_that_runs_into_a_deeper_lesion_is_part_of_it():
     assert len(lesions) == 1
     assert lesions[0].mld_arc_mm == pytest.approx(25.0, abs=0.25)
     assert len({les.mld_point_mm for les in lesions}) == len(lesions)
+
+
+def test_a_stub_whose_continuation_leaves_its_first_point_adds_no_sample_and_no_crash():
+    # A ends where the short B begins; B's child C leaves B's first point and carries A on: the
+    # vessel A -> B -> C holds none of B's points (its first is A's last, the rest lie beyond C's start)
+    from angiohull.qca.vessels import tree_vessels
+
+    a = Branch(np.column_stack([np.linspace(0, 20, 41), np.zeros(41), np.zeros(41)]), 1.5, name="a")
+    b = Branch(np.array([[20.0, 0, 0], [20.5, 0.2, 0], [21.0, 0.4, 0]]), 1.5, parent=0, parent_point=40, name="b")
+    c = Branch(np.column_stack([np.linspace(20, 40, 41), np.zeros(41), np.zeros(41)]), 1.4, parent=1, parent_point=0,
+               name="c")
+    vessels = tree_vessels(VesselTree((a, b, c)))
+    (vessel,) = [v for v in vessels.vessels if 0 in v.branches]
+    assert vessel.branches == (0, 1, 2)
+    assert 1 not in vessel.owner  # B adds no sample
+    # C's first point is A's last: not repeated; the vessel runs 0..40 mm straight, every 0.5 mm
+    np.testing.assert_allclose(vessel.points_mm[:, 0], np.linspace(0, 40, 81))
+    np.testing.assert_allclose(vessel.arc_mm, np.linspace(0, 40, 81), atol=1e-9)
+    analysis = analyse_tree(VesselTree((a, b, c)))
+    assert len(analysis.branches) == 3

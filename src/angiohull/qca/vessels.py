@@ -154,7 +154,7 @@ def tree_vessels(tree: VesselTree, settings: VesselSettings = VesselSettings()) 
         while chain[-1] in continues_into:
             chain.append(continues_into[chain[-1]])
         points, radius, arcs, owner, point, offsets = [], [], [], [], [], []
-        offset = 0.0
+        offset, last = 0.0, None  # last: the vessel's last point so far (a branch may add none)
         for k, b in enumerate(chain):
             branch = tree.branches[b]
             arc = branch.arc_length_mm
@@ -163,13 +163,16 @@ def tree_vessels(tree: VesselTree, settings: VesselSettings = VesselSettings()) 
                 offset += float(previous.arc_length_mm[branch.parent_point]) \
                     + float(np.linalg.norm(branch.points_mm[0] - previous.points_mm[branch.parent_point]))
             stop = tree.branches[chain[k + 1]].parent_point + 1 if k + 1 < len(chain) else branch.n_points
-            start = 1 if k > 0 and np.linalg.norm(branch.points_mm[0] - points[-1][-1]) <= 1e-9 else 0
+            start = 1 if last is not None and np.linalg.norm(branch.points_mm[0] - last) <= 1e-9 else 0
+            start = min(start, stop)
             offsets.append(offset)
             points.append(branch.points_mm[start:stop])
             radius.append(branch.radius_mm[start:stop])
             arcs.append(offset + arc[start:stop])
             owner.append(np.full(stop - start, b))
             point.append(np.arange(start, stop))
+            if stop > start:
+                last = branch.points_mm[stop - 1]
             vessel_of[b] = len(vessels)
         vessels.append(Vessel(tuple(chain), tuple(offsets), np.concatenate(points), np.concatenate(radius),
                               np.concatenate(arcs), np.concatenate(owner), np.concatenate(point)))
