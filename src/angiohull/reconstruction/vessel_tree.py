@@ -67,12 +67,17 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    ``junction_max_move_mm`` of the skeleton's junction, the child starts there, straight to its
    clear start (the radius there held over the straight part; no view sees a cross-section where
    the vessels merge). Same 24 trees: median junction error 0.86 mm instead of 1.90 mm.
-6. **Ends.** The skeleton may stop short of a vessel's end or overshoot it where the hull ends in
+6. **Ends.** Near a tip the cross-sections are the end cap's, not a tube's, and the skeleton's
+   path ends where the hull's excess beyond the cap is farthest: bent off the axis (the root's
+   start, at the left main's ostium, 2-3 mm to the side on 4 of 8 generated left trees). So each
+   tip's last ``tip_straight_radii`` radii are first laid on the least-squares line of the
+   ``junction_fit_mm`` of its branch before them (a tip a child leaves from stays as it is). Then the
+   skeleton may stop short of a vessel's end or overshoot it where the hull ends in
    a point. Each tip of the tree (the root's start and every branch end with no child there) moves
    along its tangent to the farthest place, within ``end_reach_radii`` radii, where the end cap
    (the point plus one radius along the tangent) still projects onto the mask in every view; a tip
-   whose cap is outside a mask is cut back to where it is inside all of them (the root's start is
-   only extended, so that its children's parent points stay).
+   whose cap is outside a mask is cut back to where it is inside all of them (the root's start no
+   farther than its first child's parent point; its children's parent points follow the cut).
 7. Radii may be smoothed along the branch (Gaussian, ``radius_smoothing_mm``) before the ends
    move; by default they are not: a smoothing of 0.5 mm filled stenoses in (on 16 generated trees
    with 36 stenoses, the minimal lumen diameter came out 0.070 mm too wide on average, against
@@ -129,6 +134,7 @@ class TreeSettings:
     junction_max_miss_radii: float = 1.0  # ... which must pass the parent's axis within this many parent radii,
     junction_min_angle_deg: float = 15.0  # ... cross it at this angle or more,
     junction_max_move_mm: float = 8.0  # ... and this close to the skeleton's junction (else the junction stays)
+    tip_straight_radii: float = 1.5  # a tip's last this many radii are laid on the line of its branch before them
     skeleton: SkeletonSettings = field(default_factory=SkeletonSettings)
 
 
@@ -536,6 +542,43 @@ def _junction_on_axes(arrays: _Arrays, settings: TreeSettings) -> tuple[_Arrays,
     return out, moved
 
 
+def _straight_tips(arrays: _Arrays, settings: TreeSettings) -> int:
+    """Each tip's last ``tip_straight_radii`` radii laid on the line of the ``junction_fit_mm`` of
+    its branch before them (module notes, step 6), in place; returns how many tips were straightened."""
+    has_child_at = {(arrays.parents[b], arrays.parent_points[b]) for b in range(1, len(arrays.counts))}
+    fit = settings.junction_fit_mm
+    count = 0
+    for b in range(len(arrays.counts)):
+        span = arrays.span(b)
+        tips = [] if (b, int(arrays.counts[b]) - 1) in has_child_at else [False]
+        if b == 0:
+            tips.append(True)  # the root's start
+        for at_start in tips:
+            points = arrays.points[span][::-1] if not at_start else arrays.points[span]
+            radius = arrays.radius[span][::-1] if not at_start else arrays.radius[span]
+            arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+            cap = settings.tip_straight_radii * float(np.median(radius[arc <= fit]))
+            line = np.flatnonzero((arc >= cap) & (arc <= cap + fit))
+            near = np.flatnonzero(arc < cap)
+            if len(line) < 3 or len(near) == 0 or (b, 0) in has_child_at and at_start:
+                continue
+            if not at_start and any(c <= len(points) - 1 - near[-1] for c in
+                                    [arrays.parent_points[k] for k in range(1, len(arrays.counts)) if arrays.parents[k] == b]):
+                continue  # a child leaves from the stretch: it stays
+            centre = points[line].mean(axis=0)
+            axis = np.linalg.svd(points[line] - centre, full_matrices=False)[2][0]
+            if axis @ (points[line[0]] - points[line[-1]]) < 0:
+                axis = -axis  # towards the tip
+            anchor = centre + ((points[line[0]] - centre) @ axis) * axis
+            straight = anchor + (arc[line[0]] - arc[near])[:, None] * axis
+            if at_start:
+                arrays.points[int(arrays.starts[b]) + near] = straight
+            else:
+                arrays.points[int(arrays.starts[b] + arrays.counts[b]) - 1 - near] = straight
+            count += 1
+    return count
+
+
 def _move_ends(arrays: _Arrays, projections, images, settings: TreeSettings) -> tuple[VesselTree, list[float]]:
     tree = arrays.tree()
     has_child_at = {(b.parent, b.parent_point) for b in tree.branches[1:]}
@@ -571,13 +614,21 @@ def _move_ends(arrays: _Arrays, projections, images, settings: TreeSettings) -> 
                     keep[:last_needed + 1] = True
                     if keep.sum() >= 2:
                         points, radius = points[keep], radius[keep]
-            else:  # the root's start: prepend (never cut: its children's indices would move)
+            else:  # the root's start: prepend, or cut back to before its first child
                 if move > 0:
                     count = int(np.ceil(move / step))
                     extra = end + np.outer(np.arange(count, 0, -1) * (move / count), outward)
                     points = np.vstack([extra, points])
                     radius = np.concatenate([np.full(count, radius[0]), radius])
                     shift = count
+                elif move < 0:
+                    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+                    children_points = [c.parent_point for c in branches if c.parent == index]
+                    cut = min(int(np.searchsorted(arc, -move, side="left")), min(children_points, default=len(points)),
+                              len(points) - 2)
+                    if cut > 0:
+                        points, radius = points[cut:], radius[cut:]
+                        shift = -cut
         branches[index] = Branch(points, radius, b.parent, b.parent_point, b.name)
         if shift:
             for j, c in enumerate(branches):
@@ -758,6 +809,7 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     _smooth_radii(arrays, settings.radius_smoothing_mm, step)
     arrays, rerooted_mm = _rooted_at_ostium(arrays, settings)
     arrays, junctions_moved = _junction_on_axes(arrays, settings)
+    _straight_tips(arrays, settings)
     timings["fit"] = time.perf_counter() - start
 
     start = time.perf_counter()
