@@ -132,6 +132,38 @@ def test_a_side_branch_starts_where_its_axis_meets_the_trunk(angle_deg):
     assert np.degrees(np.arccos(min(cosine, 1.0))) < 5.0
 
 
+def test_a_short_trunk_keeps_its_start_and_direction_into_a_bifurcation():
+    # a left main of 9 mm (radius 2.2 mm) splitting into two daughters: the root starts at the
+    # ostium and the bifurcation's arms point where the truth's do; a tip's straightening must
+    # not tilt a start that has no hook (laid on the line of the 3 mm before the junction's blob,
+    # this one came out 3.3 degrees off)
+    from angiohull.qca import QcaSettings, analyse_tree
+
+    ostium = np.array([-8.0, -4.0, 3.0])
+    direction = np.array([1.0, 0.5, -0.3]) / np.linalg.norm([1.0, 0.5, -0.3])
+    end = ostium + 9.0 * direction
+    trunk = _line(ostium, end)
+
+    def daughter(angle_deg, up):
+        normal = np.cross(direction, up)
+        normal /= np.linalg.norm(normal)
+        return _line(end, end + 40 * (np.cos(np.radians(angle_deg)) * direction + np.sin(np.radians(angle_deg)) * normal))
+
+    truth = VesselTree((Branch(trunk, 2.2, name="left_main"),
+                        Branch(daughter(40, np.array([0, 0, 1.0])), 1.9, parent=0, parent_point=len(trunk) - 1, name="LAD"),
+                        Branch(daughter(-60, np.array([0.2, 0, 1.0])), 1.7, parent=0, parent_point=len(trunk) - 1,
+                               name="LCx")))
+    tree = _reconstructed(truth).tree
+    assert np.linalg.norm(tree.branches[0].points_mm[0] - ostium) < 0.5
+    settings = QcaSettings(lesion_views=False)
+    (true_bifurcation,) = analyse_tree(truth, settings=settings).bifurcations
+    (bifurcation,) = analyse_tree(tree, settings=settings).bifurcations
+    assert np.linalg.norm(np.subtract(bifurcation.position_mm, true_bifurcation.position_mm)) < 1.0
+    for true_arm in true_bifurcation.arms:  # each true arm has a reconstructed one within 2 degrees
+        best = max(float(np.dot(true_arm.direction, arm.direction)) for arm in bifurcation.arms)
+        assert np.degrees(np.arccos(min(best, 1.0))) < 2.0, true_arm.role
+
+
 def test_the_paper_preset_gives_a_tree_too():
     truth = _straight()
     result = _reconstructed(truth, preset="paper")

@@ -71,7 +71,9 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    path ends where the hull's excess beyond the cap is farthest: bent off the axis (the root's
    start, at the left main's ostium, 2-3 mm to the side on 4 of 8 generated left trees). So each
    tip's last ``tip_straight_radii`` radii are first laid on the least-squares line of the
-   ``junction_fit_mm`` of its branch before them (a tip a child leaves from stays as it is). Then the
+   ``junction_fit_mm`` of its branch before them, when the tip lies farther than
+   ``tip_hook_radii`` radii from that line (a tip a child leaves from stays as it is; a short
+   trunk's line, near its junction, may tilt a start that has no hook). Then the
    skeleton may stop short of a vessel's end or overshoot it where the hull ends in
    a point. Each tip of the tree (the root's start and every branch end with no child there) moves
    along its tangent to the farthest place, within ``end_reach_radii`` radii, where the end cap
@@ -134,7 +136,8 @@ class TreeSettings:
     junction_max_miss_radii: float = 1.0  # ... which must pass the parent's axis within this many parent radii,
     junction_min_angle_deg: float = 15.0  # ... cross it at this angle or more,
     junction_max_move_mm: float = 8.0  # ... and this close to the skeleton's junction (else the junction stays)
-    tip_straight_radii: float = 1.5  # a tip's last this many radii are laid on the line of its branch before them
+    tip_straight_radii: float = 1.5  # a tip's last this many radii are laid on the line of its branch before them,
+    tip_hook_radii: float = 0.25  # ... when the tip lies farther than this many radii from that line
     skeleton: SkeletonSettings = field(default_factory=SkeletonSettings)
 
 
@@ -571,6 +574,9 @@ def _straight_tips(arrays: _Arrays, settings: TreeSettings) -> int:
                 axis = -axis  # towards the tip
             anchor = centre + ((points[line[0]] - centre) @ axis) * axis
             straight = anchor + (arc[line[0]] - arc[near])[:, None] * axis
+            off = points[0] - centre
+            if np.linalg.norm(off - (off @ axis) * axis) <= settings.tip_hook_radii * cap / settings.tip_straight_radii:
+                continue  # the tip lies on the line already (within the tolerance): no hook
             if at_start:
                 arrays.points[int(arrays.starts[b]) + near] = straight
             else:
