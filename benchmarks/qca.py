@@ -261,7 +261,11 @@ def _run_tree(task: tuple[str, int]) -> list[dict]:
         if result.tree is None:
             rows.append({**row, "error": f"no tree: {result.tree_error}"})
             continue
-        qca = analyse_tree(result.tree, settings=settings)
+        try:
+            qca = analyse_tree(result.tree, settings=settings)
+        except Exception as exc:  # noqa: BLE001 - a failed analysis is a row (and counted), not a crash
+            rows.append({**row, "error": f"analysis: {type(exc).__name__}: {exc}"})
+            continue
         t2 = time.perf_counter()
         found = [{"branch": les.branch, "point_mm": list(les.mld_point_mm), "mld_mm": les.mld_mm,
                   "reference_diameter_mm": les.reference_diameter_mm,

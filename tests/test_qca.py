@@ -748,3 +748,12 @@ def test_a_stub_whose_continuation_leaves_its_first_point_adds_no_sample_and_no_
     np.testing.assert_allclose(vessel.arc_mm, np.linspace(0, 40, 81), atol=1e-9)
     analysis = analyse_tree(VesselTree((a, b, c)))
     assert len(analysis.branches) == 3
+    # a side branch D leaving the stub past C's start: its bifurcation sits where B and C begin
+    # (a thin one, turning back a little, so that C still carries the vessel on)
+    d = Branch(np.array([21.0, 0.4, 0.0]) + np.linspace(0, 10, 21)[:, None] * np.array([-0.4, 1.0, 0.0]), 1.0,
+               parent=1, parent_point=2, name="d")
+    (bifurcation,) = analyse_tree(VesselTree((a, b, c, d))).bifurcations
+    roles = {arm.role: arm for arm in bifurcation.arms}
+    assert roles["distal main"].branch == 2 and roles["side"].branch == 3  # the proximal arm runs back along A
+    np.testing.assert_allclose(roles["proximal main"].direction, [-1, 0, 0], atol=1e-9)
+    np.testing.assert_allclose(roles["distal main"].direction, [1, 0, 0], atol=1e-9)

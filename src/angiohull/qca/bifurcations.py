@@ -184,9 +184,11 @@ def analyse_bifurcations(tree: VesselTree, lesions: Sequence[Lesion] = (),
         sides_of = [c for c in bif.children if c != continuation]
         if not sides_of:
             continue  # the branch carries on into its only child here: one vessel, no bifurcation
-        # where the bifurcation sits on the parent's vessel (a junction on the stub past the
-        # continuation's junction counts as at that junction)
-        s0 = min(p_offset + float(parent.arc_length_mm[bif.parent_point]), float(v.arc_mm[v.owner == bif.parent].max()))
+        # where the bifurcation sits on the parent's vessel (a junction on the stub
+        # past the continuation's junction counts as at that junction; a stub whose continuation
+        # leaves its first point adds no sample to the vessel: its junctions are at its start)
+        owned = v.arc_mm[v.owner == bif.parent]
+        s0 = min(p_offset + float(parent.arc_length_mm[bif.parent_point]), float(owned.max()) if owned.size else p_offset)
         offset = settings.arm_offset_radii * float(parent.radius_mm[bif.parent_point])
 
         def arm(role: str, vessel: Vessel, branch: int, start: float, reverse: bool) -> Arm:
