@@ -301,8 +301,7 @@ def _stl_facets(mesh: SurfaceMesh) -> np.ndarray:
     facets = np.zeros(len(faces), dtype=_STL_FACET)
     # np.take: several times faster than fancy indexing of rows
     facets["corners"] = np.take(vertices.astype(np.float32), faces, axis=0)
-    coordinates = np.ascontiguousarray(vertices.T)
-    p1, p2, p3 = (np.take(coordinates, faces[:, k], axis=1) for k in range(3))
+    p1, p2, p3 = (np.take(vertices, faces[:, k], axis=0).T for k in range(3))
     ax, ay, az = p3 - p2
     bx, by, bz = p1 - p2
     normal = np.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=1)
