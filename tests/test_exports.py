@@ -240,6 +240,24 @@ def test_nifti_reads_back_with_nibabel(tmp_path, lumen):
     np.testing.assert_array_equal(LPS_TO_RAS, np.diag([-1.0, -1.0, 1.0, 1.0]))
 
 
+def test_nifti_is_what_nibabel_save_writes(tmp_path, lumen, monkeypatch):
+    """Byte for byte nibabel.save of the whole label map in NIfTI order, whether the labels fit
+    uint8 or not, empty or not, however many slices a run of the stream holds."""
+    from angiohull.tree.solid import LumenVolume
+
+    rng = np.random.default_rng(9)
+    many = np.zeros((30, 20, 40), dtype=np.uint16)
+    many.reshape(-1)[rng.choice(many.size, 500, replace=False)] = rng.integers(1, 700, 500)
+    cases = [lumen, LumenVolume(many, np.array([1.5, -2.0, 3.25]), 0.3),
+             LumenVolume(np.zeros((4, 5, 6), dtype=np.uint16), np.zeros(3), 1.0)]
+    for chunk_bytes in (exports._NIFTI_CHUNK_BYTES, 1000, 1):
+        monkeypatch.setattr(exports, "_NIFTI_CHUNK_BYTES", chunk_bytes)
+        for case in cases:
+            exports._write_nifti(tmp_path / "ours.nii.gz", case)
+            exports._write_nifti_whole(tmp_path / "whole.nii.gz", case)
+            assert (tmp_path / "ours.nii.gz").read_bytes() == (tmp_path / "whole.nii.gz").read_bytes()
+
+
 # -- the set ------------------------------------------------------------------------------------
 def test_write_tree_exports_writes_the_set(tmp_path, mesh, lumen):
     out = tmp_path / "new" / "exports"
