@@ -16,7 +16,8 @@ tube then loses about 1 % of its volume), and no finer than the bounding box all
 :data:`MAX_GRID_VOXELS` voxels.
 :func:`lumen_labels` labels the grid's voxel centres inside the solid with the branch (index + 1)
 of the capsule that contains them most deeply (0 outside). Both work block by block (64 cells a
-side, blocks that no capsule reaches skipped), with the same result as the whole grid at once.
+side, blocks that no capsule reaches skipped), with the same result as the whole grid at once; a
+second thread computes the blocks' distances and labels ahead of the marching cubes.
 """
 
 from __future__ import annotations
@@ -243,8 +244,10 @@ class _Grid:
         """Signed distance (``band`` where no capsule is within it) and 1 + owning branch (0 there)
         on the voxels ``start <= index < stop``, from the given capsules (in order: of equally
         distant capsules the first owns the voxel). The distances are computed for groups of
-        capsules at once (:meth:`capsules`; a few hundred thousand numbers a group), then merged
-        capsule by capsule."""
+        capsules at once (:meth:`capsules`; some tens of thousands of numbers a group). The
+        capsules of a run of one branch are merged with one ``np.minimum`` each into the run's
+        own box (whichever of them is nearest, the owner is that branch), and each run into the
+        block by distance and owner."""
         distance = np.full(tuple(stop - start), np.float32(self.band), dtype=np.float32)
         owner = np.zeros(tuple(stop - start), dtype=np.uint16)
         index = np.asarray(list(capsules), dtype=np.int64)
