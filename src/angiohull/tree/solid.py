@@ -224,19 +224,21 @@ class _Grid:
         ab = self.step32[index]
         shape_x, shape_y, shape_z = (slice(None), slice(None), None, None), (slice(None), None, slice(None), None), \
             (slice(None), None, None, slice(None))
-        t = (axes[0] * ab[:, 0, None])[shape_x] + (axes[1] * ab[:, 1, None])[shape_y]
-        t = t + (axes[2] * ab[:, 2, None])[shape_z]
+        shape = (len(index), axes[0].shape[1], axes[1].shape[1], axes[2].shape[1])
+        # in place, three arrays in all (fewer and warmer memory): the same operations as capsule()
+        t = np.add((axes[0] * ab[:, 0, None])[shape_x] + (axes[1] * ab[:, 1, None])[shape_y],
+                   (axes[2] * ab[:, 2, None])[shape_z], out=np.empty(shape, dtype=np.float32))
         t *= self.scale32[index, None, None, None]
         np.clip(t, 0.0, 1.0, out=t)  # 0 for a capsule of no length (scale 0): its points stay as they are
-        px = axes[0][shape_x] - t * ab[:, 0, None, None, None]
-        py = axes[1][shape_y] - t * ab[:, 1, None, None, None]
-        pz = axes[2][shape_z] - t * ab[:, 2, None, None, None]
-        px *= px
-        py *= py
-        pz *= pz
-        px += py
-        px += pz
-        distance = np.sqrt(px, out=px)
+        distance, term = np.empty(shape, dtype=np.float32), np.empty(shape, dtype=np.float32)
+        for k, (axis, part) in enumerate(zip(axes, (shape_x, shape_y, shape_z))):
+            out = distance if k == 0 else term if k == 1 else t  # t is not needed after its last use here
+            np.multiply(t, ab[:, k, None, None, None], out=out)
+            np.subtract(axis[part], out, out=out)  # p_k - t ab_k
+            np.multiply(out, out, out=out)
+            if k:
+                distance += out  # (px² + py²) + pz², as capsule() sums them
+        np.sqrt(distance, out=distance)
         distance -= self.radius32[index, None, None, None]
         return distance
 
