@@ -361,7 +361,7 @@ def _nifti_chunks(labels: np.ndarray, dtype: np.dtype, flat: np.ndarray, values:
     slices = max(1, min(nz, _NIFTI_CHUNK_BYTES // max(per_slice * dtype.itemsize, 1)))
     x, rest = np.divmod(flat, ny * nz)
     y, z = np.divmod(rest, nz)
-    order = np.argsort(z, kind="stable")
+    order = np.argsort(z.astype(np.uint16) if nz <= np.iinfo(np.uint16).max else z, kind="stable")  # radix sort
     z_sorted = z[order]
     within = (x + nx * y)[order] + per_slice * (z_sorted % slices)  # index in its run of slices
     values = values[order].astype(dtype)
