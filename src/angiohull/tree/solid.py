@@ -16,7 +16,8 @@ tube then loses about 1 % of its volume), and no finer than the bounding box all
 :data:`MAX_GRID_VOXELS` voxels.
 :func:`lumen_labels` labels the grid's voxel centres inside the solid with the branch (index + 1)
 of the capsule that contains them most deeply (0 outside). Both work block by block (64 cells a
-side, blocks that no capsule reaches skipped), with the same result as the whole grid at once.
+side, blocks that no capsule reaches skipped), with the same result as the whole grid at once; a
+second thread computes the blocks' distances and labels ahead of the marching cubes.
 """
 
 from __future__ import annotations
@@ -223,19 +224,21 @@ class _Grid:
         ab = self.step32[index]
         shape_x, shape_y, shape_z = (slice(None), slice(None), None, None), (slice(None), None, slice(None), None), \
             (slice(None), None, None, slice(None))
-        t = (axes[0] * ab[:, 0, None])[shape_x] + (axes[1] * ab[:, 1, None])[shape_y]
-        t = t + (axes[2] * ab[:, 2, None])[shape_z]
+        shape = (len(index), axes[0].shape[1], axes[1].shape[1], axes[2].shape[1])
+        # in place, three arrays in all (fewer and warmer memory): the same operations as capsule()
+        t = np.add((axes[0] * ab[:, 0, None])[shape_x] + (axes[1] * ab[:, 1, None])[shape_y],
+                   (axes[2] * ab[:, 2, None])[shape_z], out=np.empty(shape, dtype=np.float32))
         t *= self.scale32[index, None, None, None]
         np.clip(t, 0.0, 1.0, out=t)  # 0 for a capsule of no length (scale 0): its points stay as they are
-        px = axes[0][shape_x] - t * ab[:, 0, None, None, None]
-        py = axes[1][shape_y] - t * ab[:, 1, None, None, None]
-        pz = axes[2][shape_z] - t * ab[:, 2, None, None, None]
-        px *= px
-        py *= py
-        pz *= pz
-        px += py
-        px += pz
-        distance = np.sqrt(px, out=px)
+        distance, term = np.empty(shape, dtype=np.float32), np.empty(shape, dtype=np.float32)
+        for k, (axis, part) in enumerate(zip(axes, (shape_x, shape_y, shape_z))):
+            out = distance if k == 0 else term if k == 1 else t  # t is not needed after its last use here
+            np.multiply(t, ab[:, k, None, None, None], out=out)
+            np.subtract(axis[part], out, out=out)  # p_k - t ab_k
+            np.multiply(out, out, out=out)
+            if k:
+                distance += out  # (px² + py²) + pz², as capsule() sums them
+        np.sqrt(distance, out=distance)
         distance -= self.radius32[index, None, None, None]
         return distance
 
@@ -243,8 +246,10 @@ class _Grid:
         """Signed distance (``band`` where no capsule is within it) and 1 + owning branch (0 there)
         on the voxels ``start <= index < stop``, from the given capsules (in order: of equally
         distant capsules the first owns the voxel). The distances are computed for groups of
-        capsules at once (:meth:`capsules`; a few hundred thousand numbers a group), then merged
-        capsule by capsule."""
+        capsules at once (:meth:`capsules`; some tens of thousands of numbers a group). The
+        capsules of a run of one branch are merged with one ``np.minimum`` each into the run's
+        own box (whichever of them is nearest, the owner is that branch), and each run into the
+        block by distance and owner."""
         distance = np.full(tuple(stop - start), np.float32(self.band), dtype=np.float32)
         owner = np.zeros(tuple(stop - start), dtype=np.uint16)
         index = np.asarray(list(capsules), dtype=np.int64)
@@ -254,25 +259,35 @@ class _Grid:
         size = np.minimum(self.hi[index] + 1, stop) - first
         keep = np.all(size > 0, axis=1)
         index, first, size = index[keep], first[keep], size[keep]
-        label = (self.branch[index] + 1).astype(np.uint16)
-        begin = 0
-        while begin < len(index):
-            end, largest = begin + 1, size[begin].copy()
-            while end < len(index):
-                grown = np.maximum(largest, size[end])
-                if (end + 1 - begin) * int(np.prod(grown)) > _GROUP_VOXELS:
-                    break
-                largest, end = grown, end + 1
-            d = self.capsules(index[begin:end], first[begin:end], size[begin:end])
-            for j in range(begin, end):
-                low = first[j] - start
-                window = (slice(low[0], low[0] + size[j, 0]), slice(low[1], low[1] + size[j, 1]),
-                          slice(low[2], low[2] + size[j, 2]))
-                dj = d[j - begin, :size[j, 0], :size[j, 1], :size[j, 2]]
-                closer = dj < distance[window]
-                np.copyto(distance[window], dj, where=closer)
-                np.copyto(owner[window], label[j], where=closer)
-            begin = end
+        branch = self.branch[index]
+        low, extent = (first - start).tolist(), size.tolist()
+        # runs of capsules of one branch: within a run only the smallest distance matters (the
+        # run's owner is the same whichever capsule gives it), so each capsule is merged into the
+        # run's own box with one np.minimum, and each run into the block as a whole
+        cuts = np.flatnonzero(np.diff(branch)) + 1
+        for run_begin, run_end in zip([0, *cuts.tolist()], [*cuts.tolist(), len(index)]):
+            run_low = np.min(low[run_begin:run_end], axis=0)
+            run_high = np.max(np.add(low[run_begin:run_end], extent[run_begin:run_end]), axis=0)
+            run = np.full(tuple(run_high - run_low), np.float32(self.band), dtype=np.float32)
+            x0, y0, z0 = run_low.tolist()
+            begin = run_begin
+            while begin < run_end:
+                end, largest = begin + 1, list(extent[begin])
+                while end < run_end:
+                    grown = [max(u, v) for u, v in zip(largest, extent[end])]
+                    if (end + 1 - begin) * grown[0] * grown[1] * grown[2] > _GROUP_VOXELS:
+                        break
+                    largest, end = grown, end + 1
+                d = self.capsules(index[begin:end], first[begin:end], size[begin:end])
+                for j in range(begin, end):
+                    (x, y, z), (sx, sy, sz) = low[j], extent[j]
+                    window = run[x - x0:x - x0 + sx, y - y0:y - y0 + sy, z - z0:z - z0 + sz]
+                    np.minimum(window, d[j - begin, :sx, :sy, :sz], out=window)
+                begin = end
+            window = tuple(slice(a, b) for a, b in zip(run_low.tolist(), run_high.tolist()))
+            closer = run < distance[window]
+            np.copyto(distance[window], run, where=closer)
+            np.copyto(owner[window], np.uint16(branch[run_begin] + 1), where=closer)
         return distance, owner
 
 
@@ -284,37 +299,67 @@ def _distance_grid(tree: VesselTree, step_mm: float) -> tuple[np.ndarray, np.nda
     return distance, grid.origin, owner
 
 
+def _block_members(grid: _Grid, size: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The blocks that some capsule's box reaches, in (x, y, z) order: (first voxel, capsule
+    indices ascending) each."""
+    blocks = np.maximum((grid.shape - 1 + size - 1) // size, 1)
+    first = np.maximum(-(-(grid.lo - size) // size), 0)  # blocks whose samples [k B, k B + B] meet the box
+    last = np.minimum(grid.hi // size, blocks - 1)
+    counts = np.maximum(last - first + 1, 0)
+    per_capsule = counts.prod(axis=1)
+    capsule = np.repeat(np.arange(len(counts)), per_capsule)
+    if len(capsule) == 0:
+        return []
+    offset = np.arange(len(capsule)) - np.repeat(np.cumsum(per_capsule) - per_capsule, per_capsule)
+    ny, nz = counts[capsule, 1], counts[capsule, 2]
+    block = first[capsule] + np.stack([offset // (ny * nz), (offset // nz) % ny, offset % nz], axis=1)
+    code = (block[:, 0] * blocks[1] + block[:, 1]) * blocks[2] + block[:, 2]
+    order = np.argsort(code, kind="stable")  # capsules stay ascending within a block
+    cuts = np.flatnonzero(np.diff(code[order])) + 1
+    starts = block[order[np.concatenate([[0], cuts])]] * size
+    return list(zip(starts, np.split(capsule[order], cuts)))
+
+
 def _blocked(tree: VesselTree, step_mm: float, *, mesh: bool, labels: bool) -> tuple[SurfaceMesh | None, LumenVolume | None]:
     """Mesh and labels block by block: blocks of ``_BLOCK`` cells (sharing their last sample plane
     with the next block) that no capsule's box reaches are never computed, and each block's cubes
     are marched in that block only, so that the result equals the whole grid's; vertices on the
-    planes two blocks share come out identical from both and are merged."""
+    planes two blocks share come out identical from both and are merged.
+
+    A second thread computes the blocks' distances and labels (NumPy, which lets other threads
+    run while it computes) a block or two ahead of the marching cubes (which do not)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from skimage.measure import marching_cubes
 
     grid = _Grid.of(tree, step_mm)
     size = _BLOCK
-    blocks = np.maximum((grid.shape - 1 + size - 1) // size, 1)
-    first = np.maximum(-(-(grid.lo - size) // size), 0)  # blocks whose samples [k B, k B + B] meet the box
-    last = np.minimum(grid.hi // size, blocks - 1)
-    members: dict[tuple[int, int, int], list[int]] = {}
-    for i in range(len(grid.a)):
-        for bx in range(first[i, 0], last[i, 0] + 1):
-            for by in range(first[i, 1], last[i, 1] + 1):
-                for bz in range(first[i, 2], last[i, 2] + 1):
-                    members.setdefault((bx, by, bz), []).append(i)
     label_volume = np.zeros(tuple(grid.shape), dtype=np.uint16) if labels else None
-    vertices, faces, count = [], [], 0
-    for key in sorted(members):
-        start = np.array(key) * size
+    surface_level = np.float32(grid.band * 0.999)
+
+    def block(start: np.ndarray, members: np.ndarray):
         stop = np.minimum(start + size + 1, grid.shape)
-        distance, owner = grid.fill(start, stop, members[key])
+        distance, owner = grid.fill(start, stop, members)
         if label_volume is not None:
             window = label_volume[tuple(slice(a, b) for a, b in zip(start, stop))]
             np.copyto(window, owner, where=distance <= 0)
         if mesh and np.any(np.asarray(distance.shape) >= 2) and distance.min() <= 0 < distance.max():
+            return start, distance, distance < surface_level
+        return None
+
+    vertices, faces, count = [], [], 0
+    work = _block_members(grid, size)
+    with ThreadPoolExecutor(1, thread_name_prefix="angiohull-grid") as pool:
+        pending = [pool.submit(block, *item) for item in work[:2]]
+        for k in range(len(work)):
+            ready = pending.pop(0).result()
+            if k + 2 < len(work):
+                pending.append(pool.submit(block, *work[k + 2]))
+            if ready is None:
+                continue
+            start, distance, inside_band = ready
             try:
-                v, f, _, _ = marching_cubes(distance, 0.0, mask=distance < np.float32(grid.band * 0.999),
-                                            allow_degenerate=False)
+                v, f, _, _ = marching_cubes(distance, 0.0, mask=inside_band, allow_degenerate=False)
             except RuntimeError:  # no cube of this block holds the surface
                 continue
             vertices.append(v.astype(np.float64) + start)
@@ -332,17 +377,22 @@ def _blocked(tree: VesselTree, step_mm: float, *, mesh: bool, labels: bool) -> t
 def _welded(vertices: np.ndarray, faces: np.ndarray, grid: _Grid, size: int) -> SurfaceMesh:
     """Merge the copies of the vertices on shared block planes (exactly equal coordinates) and
     orient the faces outward."""
-    on_plane = np.any((vertices % size == 0) & (vertices > 0), axis=1)
+    scaled = vertices * (1.0 / size)  # exact: size is a power of two
+    on_plane = np.any((scaled == np.floor(scaled)) & (vertices > 0), axis=1)  # a coordinate k size, k > 0
     index = np.arange(len(vertices))
     candidates = np.flatnonzero(on_plane)
     if len(candidates):
-        _, first, inverse = np.unique(vertices[candidates], axis=0, return_index=True, return_inverse=True)
-        index[candidates] = candidates[first][inverse.ravel()]
+        rows = vertices[candidates]
+        order = np.lexsort(rows.T[::-1])  # stable: equal rows keep their order, the first of each leads
+        ordered = rows[order]
+        leads = np.concatenate([[True], np.any(ordered[1:] != ordered[:-1], axis=1)])
+        first_of_kind = order[np.flatnonzero(leads)][np.cumsum(leads) - 1]
+        index[candidates[order]] = candidates[first_of_kind]
     # every copy points at the first (lowest) of its kind, itself kept: the kept vertices in order
     kept = index == np.arange(len(index))
     used = np.flatnonzero(kept)
-    faces = (np.cumsum(kept) - 1)[index[faces]].reshape(-1, 3)
-    mesh = SurfaceMesh(grid.origin + grid.step * vertices[used], faces, grid.step)
+    faces = np.take(np.cumsum(kept) - 1, np.take(index, faces))
+    mesh = SurfaceMesh(grid.origin + grid.step * np.take(vertices, used, axis=0), faces, grid.step)
     if _signed_volume(mesh.vertices_mm, mesh.faces) < 0:  # faces wound inward: turn them
         mesh = SurfaceMesh(mesh.vertices_mm, mesh.faces[:, ::-1].copy(), grid.step)
     return mesh
@@ -351,7 +401,7 @@ def _welded(vertices: np.ndarray, faces: np.ndarray, grid: _Grid, size: int) -> 
 def _signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     """Six times the enclosed volume (positive for outward normals): the sum of ``a . (b x c)``
     over the faces, written out per coordinate (a few times faster than ``np.cross``)."""
-    a, b, c = (vertices[faces[:, k]].T for k in range(3))
+    a, b, c = (np.take(vertices, faces[:, k], axis=0).T for k in range(3))  # np.take: faster than indexing
     return float(np.sum(a[0] * (b[1] * c[2] - b[2] * c[1]) + a[1] * (b[2] * c[0] - b[0] * c[2])
                         + a[2] * (b[0] * c[1] - b[1] * c[0])))
 
