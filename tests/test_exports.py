@@ -174,47 +174,6 @@ def test_stl_reads_back_with_trimesh(tmp_path, mesh):
     assert loaded.volume == pytest.approx(mesh.volume_mm3, rel=1e-6)
 
 
-def _vtk_stl_bytes(path: Path, mesh) -> bytes:
-    """The binary STL VTK's own writer makes of a mesh (the reference of write_mesh_stl)."""
-    from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
-    from vtkmodules.vtkCommonCore import vtkPoints
-    from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkPolyData
-    from vtkmodules.vtkIOGeometry import vtkSTLWriter
-
-    faces = np.asarray(mesh.faces, dtype=np.int64)
-    points = vtkPoints()
-    points.SetData(numpy_to_vtk(np.ascontiguousarray(mesh.vertices_mm, dtype=np.float64), deep=True))
-    triangles = vtkCellArray()
-    triangles.SetData(numpy_to_vtkIdTypeArray(np.arange(0, 3 * len(faces) + 1, 3, dtype=np.int64), deep=True),
-                      numpy_to_vtkIdTypeArray(np.ascontiguousarray(faces.ravel()), deep=True))
-    polydata = vtkPolyData()
-    polydata.SetPoints(points)
-    polydata.SetPolys(triangles)
-    writer = vtkSTLWriter()
-    writer.SetInputData(polydata)
-    writer.SetFileTypeToBinary()
-    writer.SetHeader(f"angiohull {__version__} vessel surface, mm, DICOM patient frame LPS")
-    writer.SetFileName(str(path))
-    assert writer.Write() == 1
-    return path.read_bytes()
-
-
-def test_stl_is_what_vtk_writes(tmp_path, mesh):
-    """Byte for byte VTK's vtkSTLWriter (normals included), on the tree's mesh and on random
-    triangles of every scale with degenerate ones (zero normals) among them."""
-    from angiohull.tree.solid import SurfaceMesh
-
-    rng = np.random.default_rng(5)
-    vertices = rng.normal(size=(40, 3)) * 10.0 ** rng.uniform(-3, 3, size=(40, 1))
-    faces = rng.integers(0, 40, size=(300, 3))
-    faces[:20, 1] = faces[:20, 0]  # two corners the same
-    faces[20:30] = faces[20:30, :1]  # all three
-    vertices[:5] = vertices[5]  # distinct indices, one position
-    for case in (mesh, SurfaceMesh(vertices, faces, 1.0), SurfaceMesh(np.round(vertices, 1), faces, 1.0)):
-        ours = write_mesh_stl(tmp_path / "ours.stl", case).read_bytes()
-        assert ours == _vtk_stl_bytes(tmp_path / "vtk.stl", case)
-
-
 # -- NIfTI --------------------------------------------------------------------------------------
 def test_nifti_reads_back_with_nibabel(tmp_path, lumen):
     import nibabel
