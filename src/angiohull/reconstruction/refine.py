@@ -151,31 +151,56 @@ def _axis_pieces(axis_local: np.ndarray, shape: tuple[int, ...], branch_per_view
     return piece.ravel()
 
 
-def _leaves_hull(p: np.ndarray, q: np.ndarray, hull: np.ndarray, block: int = 16) -> np.ndarray:
+def _leaves_hull(p: np.ndarray, q: np.ndarray, hull: np.ndarray) -> np.ndarray:
     """(K,) bool: the straight segment between the lattice points p[k] and q[k] ((K, 3) integer
-    indices into ``hull``) passes a lattice point outside ``hull``: sampled every half lattice
-    spacing, each sample rounded to its nearest lattice point (an offset from p[k] half-way between
-    two lattice steps goes to the even one).
+    indices of points of ``hull``) passes a lattice point outside ``hull``: sampled every half
+    lattice spacing, each sample rounded to its nearest lattice point (an offset from p[k] half-way
+    between two lattice steps goes to the even one).
 
-    Every sample lies in the box of its segment's ends, so inside the volume. The samples of the
-    segments still without a gap are taken ``block`` steps at a time."""
-    delta = (q - p).astype(np.float64)
-    steps = np.maximum(np.ceil(2.0 * np.sqrt((delta * delta).sum(axis=1))).astype(np.int64), 1)
-    strides = np.array(hull.strides, dtype=np.int64) // hull.itemsize
-    flat = hull.ravel()
-    start_index = p @ strides
+    Every sample lies in the box of its segment's ends, so inside the volume. The samples' offsets
+    from p[k] depend on q[k] - p[k] alone, and the segments between rivals share few differences
+    (they run along viewing rays): the lattice points a difference's samples visit are listed once
+    per difference, as flat offsets into ``hull`` without repeats (consecutive samples often round
+    to the same lattice point) and without the ends (in the hull), and every segment reads its
+    points through that list."""
     gap = np.zeros(len(p), dtype=bool)
-    active = np.flatnonzero(steps > 1)
-    start = 1
-    while len(active):
-        count = np.minimum(steps[active] - start, block)  # samples of each active segment in this block
-        segment = np.repeat(active, count)
-        k = start + np.arange(len(segment)) - np.repeat(np.cumsum(count) - count, count)
-        offset = np.rint(delta[segment] * (k / steps[segment])[:, None]).astype(np.int64)
-        outside = ~flat[start_index[segment] + offset @ strides]
-        gap[segment[outside]] = True
-        start += block
-        active = active[~gap[active] & (steps[active] > start)]
+    if len(p) == 0:
+        return gap
+    delta = q - p
+    strides = np.array(hull.strides, dtype=np.int64) // hull.itemsize
+    low = delta.min(axis=0)
+    span = delta.max(axis=0) - low + 1
+    code = ((delta[:, 0] - low[0]) * span[1] + (delta[:, 1] - low[1])) * span[2] + (delta[:, 2] - low[2])
+    unique_code, which = np.unique(code, return_inverse=True)
+    which = which.ravel()
+    unique = np.stack([unique_code // (span[1] * span[2]), (unique_code // span[2]) % span[1], unique_code % span[2]],
+                      axis=1) + low
+    step = unique.astype(np.float64)
+    steps = np.maximum(np.ceil(2.0 * np.sqrt((step * step).sum(axis=1))).astype(np.int64), 1)
+    # samples 1 .. steps - 1 of each difference, as flat offsets
+    count = steps - 1
+    first = np.cumsum(count) - count
+    owner = np.repeat(np.arange(len(unique)), count)
+    k = np.arange(len(owner)) - first[owner] + 1
+    table = np.rint(step[owner] * (k / steps[owner])[:, None]).astype(np.int64) @ strides
+    # the samples along a segment move monotonically on each axis, so a lattice point's samples
+    # are consecutive: keep the first of each run, and drop the ends
+    previous = np.empty_like(table)
+    previous[1:] = table[:-1]
+    previous[first[count > 0]] = 0
+    new = (table != previous) & (table != 0) & (table != (unique @ strides)[owner])
+    table = table[new]
+    count = np.bincount(owner[new], minlength=len(unique))
+    first = np.cumsum(count) - count
+    # every segment's lattice points: flat index of its start plus its difference's offsets
+    count = count[which]
+    tested = np.flatnonzero(count)
+    if len(tested) == 0:
+        return gap
+    start = np.cumsum(count) - count
+    position = np.repeat(first[which] - start, count) + np.arange(int(start[-1] + count[-1]))
+    inside = hull.ravel()[np.repeat(p @ strides, count) + table[position]]
+    gap[tested] = ~np.logical_and.reduceat(inside, start[tested])
     return gap
 
 
@@ -184,21 +209,21 @@ def _rivals(axis_uv: np.ndarray, reach_px: np.ndarray, axis_points: np.ndarray, 
             hull: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One view's rivals: the pairs (axis point index, piece) such that a hull point of that other
     piece projects within the axis point's reach (closed) and is separated from it by a gap in the
-    hull. Each pair once. (Per pair, the farthest such hull point is tried first, the lowest index
-    of equally far ones: it is the one most likely across a gap; the others only when it is not.)
-    ``axis_points`` and ``tube_points`` are (n, 3) integer lattice indices into the volume
-    ``hull``."""
+    hull. Each pair once, in the order of (axis point index, piece). (Per pair, the farthest such
+    hull point is tried first, the lowest index of equally far ones: it is the one most likely
+    across a gap; the others only when it is not.) ``axis_points`` and ``tube_points`` are (n, 3)
+    integer lattice indices into the volume ``hull``."""
     pairs = cKDTree(axis_uv).sparse_distance_matrix(cKDTree(tube_uv), float(reach_px.max()), output_type="ndarray")
-    axis_index, tube_index = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
+    axis_index, tube_index = pairs["i"], pairs["j"]
     rival_piece = tube_piece[tube_index]
-    keep = (rival_piece != axis_piece[axis_index]) & (pairs["v"] <= reach_px[axis_index])
+    keep = np.flatnonzero((rival_piece != axis_piece[axis_index]) & (pairs["v"] <= reach_px[axis_index]))
     axis_index, tube_index, rival_piece = axis_index[keep], tube_index[keep], rival_piece[keep]
     if len(axis_index) == 0:
-        return axis_index, rival_piece
-    offset = (tube_points[tube_index] - axis_points[axis_index]).astype(np.float64)
-    distance = (offset * offset).sum(axis=1)  # squared, in lattice spacings
-    order = np.lexsort((tube_index, -distance, rival_piece, axis_index))
-    axis_index, tube_index, rival_piece = axis_index[order], tube_index[order], rival_piece[order]
+        return axis_index.astype(np.int64), rival_piece
+    offset = tube_points[tube_index] - axis_points[axis_index]
+    distance = (offset * offset).sum(axis=1)  # squared, in lattice spacings (an integer)
+    axis_index, rival_piece, tube_index = _sorted_pairs(axis_index, rival_piece, distance, tube_index,
+                                                        len(axis_points), int(tube_piece.max()) + 1, len(tube_points))
     group_start = np.r_[True, (np.diff(axis_index) != 0) | (np.diff(rival_piece) != 0)]
     group = np.cumsum(group_start) - 1
     first = np.flatnonzero(group_start)
@@ -208,6 +233,23 @@ def _rivals(axis_uv: np.ndarray, reach_px: np.ndarray, axis_points: np.ndarray, 
         rest_apart = _leaves_hull(axis_points[axis_index[rest]], tube_points[tube_index[rest]], hull)
         apart[group[rest[rest_apart]]] = True
     return axis_index[first[apart]], rival_piece[first[apart]]
+
+
+def _sorted_pairs(axis_index: np.ndarray, rival_piece: np.ndarray, distance: np.ndarray, tube_index: np.ndarray,
+                  n_axis: int, n_pieces: int, n_tube: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(axis_index, rival_piece, tube_index) ordered by axis index, piece, decreasing distance
+    (non-negative integers) and tube index. The four keys are packed into one integer where they
+    fit (one sort of plain integers instead of a four-key lexsort; the pairs are distinct, so is the
+    packed key)."""
+    n_distance = int(distance.max()) + 1
+    if n_axis * n_pieces * n_distance * n_tube < 2 ** 63:
+        key = ((axis_index.astype(np.int64) * n_pieces + rival_piece) * n_distance + (n_distance - 1 - distance)) * n_tube
+        key = np.sort(key + tube_index)
+        tube_index = key % n_tube
+        key //= n_tube * n_distance
+        return key // n_pieces, key % n_pieces, tube_index
+    order = np.lexsort((tube_index, -distance, rival_piece, axis_index))
+    return axis_index[order].astype(np.int64), rival_piece[order], tube_index[order]
 
 
 def drop_explained_pieces(axis_piece: np.ndarray, rivals: Sequence[tuple[np.ndarray, np.ndarray]],
