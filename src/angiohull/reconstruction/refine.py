@@ -343,15 +343,22 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
         info["radius_removed"] = int(big.sum())
         return points_mm[:0], info
     # radius consistency: keep hull points within the radius of their nearest (kept) axis point
-    _, in_tube = _radius_tube(ordered[big], radius, axis, settings.slack_cells * lattice.spacing_mm, nearest)
+    candidates = ordered[big]
+    _, in_tube = _radius_tube(candidates, _lattice_indices(candidates, lattice), radius, axis,
+                              settings.slack_cells * lattice.spacing_mm, nearest)
     keep[order[np.flatnonzero(big)[in_tube]]] = True
     info["radius_removed"] = int((~in_tube).sum())
     return points_mm[keep], info
 
 
+def _lattice_indices(points_mm: np.ndarray, lattice: Lattice) -> np.ndarray:
+    """(N, 3) int: the (i, j, k) lattice indices of lattice points."""
+    return np.round((points_mm + lattice.half_edge_mm) / lattice.spacing_mm).astype(np.int64)
+
+
 def _lattice_order(points_mm: np.ndarray, lattice: Lattice) -> np.ndarray:
     """The permutation that sorts lattice points by their (i, j, k) lattice indices."""
-    ijk = np.round((points_mm + lattice.half_edge_mm) / lattice.spacing_mm).astype(np.int64)
+    ijk = _lattice_indices(points_mm, lattice)
     return np.lexsort((ijk[:, 2], ijk[:, 1], ijk[:, 0]))
 
 
@@ -392,19 +399,90 @@ _TIE_MM = 1e-9
 """Points whose distances differ by less than this are equally near (lattice points often are)."""
 
 
-def _radius_tube(candidates: np.ndarray, radius: np.ndarray, axis: np.ndarray, slack_mm: float,
-                 nearest: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(nearest axis point, within its radius + slack) of every candidate. ``nearest``: (distance,
-    position in ``axis``) of the candidates' nearest axis points where already known (position -1
-    where not), e.g. from a query of more axis points whose nearest is among these."""
+def _lattice_shells(cells: int) -> dict[int, np.ndarray]:
+    """The lattice offsets (n, 3) of each squared length up to ``cells ** 2`` that has any."""
+    r = np.arange(-cells, cells + 1)
+    offsets = np.stack(np.meshgrid(r, r, r, indexing="ij"), axis=-1).reshape(-1, 3)
+    length = (offsets * offsets).sum(axis=1)
+    return {n: offsets[length == n] for n in range(cells * cells + 1) if (length == n).any()}
+
+
+_SHELLS = _lattice_shells(8)
+
+
+def _nearest_axis(axis_ijk: np.ndarray, axis_mm: np.ndarray, query_ijk: np.ndarray, query_mm: np.ndarray,
+                  reach_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """``nearest_with_ties(axis_mm, query_mm, _TIE_MM)`` for lattice points (``*_ijk``: their
+    (n, 3) lattice indices, ``axis_ijk`` in lattice order) with an axis point nearer than
+    ``reach_mm``: the distance (mm) to the nearest axis point and the index of the nearest, the
+    lowest of equally near ones. The other queries get distance inf and index 0.
+
+    The squared distance between two lattice points is an integer number of squared spacings;
+    distances of different integers differ by far more than the tie tolerance (at least
+    spacing / (2 sqrt(n)), about a micrometre at K = 1024), those of the same integer by rounding
+    only. So a k-d tree gives the distance and one nearest axis point (the distance is the smallest
+    the tree computes, whichever of the equally near points it found), and the equally near ones
+    are the axis points on the shell of lattice offsets of the same squared length around the
+    query, read from a volume (up to 8 spacings away; :func:`nearest_with_ties` beyond)."""
+    distance, index = cKDTree(axis_mm).query(query_mm, k=1, distance_upper_bound=reach_mm)
+    found = np.flatnonzero(index < len(axis_mm))
+    index[index >= len(axis_mm)] = 0
+    if len(found) == 0:
+        return distance, index
+    cells = max(int(np.sqrt(n)) for n in _SHELLS)
+    query_ijk = query_ijk[found]
+    low = np.minimum(axis_ijk.min(axis=0), query_ijk.min(axis=0)) - cells
+    shape = np.maximum(axis_ijk.max(axis=0), query_ijk.max(axis=0)) - low + cells + 1
+    strides = np.array([shape[1] * shape[2], shape[2], 1], dtype=np.int64)
+    axis_flat = (axis_ijk - low) @ strides  # increasing: the axis points are in lattice order
+    occupied = np.zeros(int(np.prod(shape)), dtype=bool)
+    occupied[axis_flat] = True
+    offset = query_ijk - axis_ijk[index[found]]
+    length = (offset * offset).sum(axis=1)  # squared lattice distance to the nearest
+    query_flat = (query_ijk - low) @ strides
+    by_length = np.argsort(length, kind="stable")
+    bounds = np.searchsorted(length[by_length], np.arange(cells * cells + 2))
+    for n, shell in _SHELLS.items():
+        which = by_length[bounds[n]:bounds[n + 1]]
+        if len(which) == 0 or len(shell) == 1:
+            continue
+        flat = query_flat[which][:, None] + (shell @ strides)[None, :]
+        hit = occupied[flat]
+        tied = np.flatnonzero(hit.sum(axis=1) > 1)
+        if len(tied):  # the lowest index of the equally near axis points
+            flat = np.where(hit[tied], flat[tied], np.iinfo(np.int64).max)
+            index[found[which[tied]]] = np.searchsorted(axis_flat, flat.min(axis=1))
+    far = found[length > cells * cells]
+    if len(far):
+        distance[far], index[far] = nearest_with_ties(axis_mm, query_mm[far], _TIE_MM)
+    return distance, index
+
+
+def _radius_tube(candidates: np.ndarray, candidates_ijk: np.ndarray, radius: np.ndarray, axis: np.ndarray,
+                 slack_mm: float, nearest: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(nearest axis point, within its radius + slack) of every candidate (``candidates_ijk``: their
+    lattice indices). ``nearest``: (distance, position in ``axis``) of the candidates' nearest axis
+    points where already known (position -1 where not), e.g. from a query of more axis points whose
+    nearest is among these. The nearest axis point is looked for within the largest radius + slack
+    only (farther candidates are outside the tube whichever it is): beyond, distance inf and
+    position 0."""
     if nearest is None:
-        distance, owner = nearest_with_ties(candidates[axis], candidates, _TIE_MM)
+        distance, owner = _nearest_axis(candidates_ijk[axis], candidates[axis], candidates_ijk, candidates,
+                                        _tube_reach(radius[axis], slack_mm))
     else:
         distance, owner = nearest[0].copy(), nearest[1].copy()
         unknown = np.flatnonzero(owner < 0)
         if len(unknown):
-            distance[unknown], owner[unknown] = nearest_with_ties(candidates[axis], candidates[unknown], _TIE_MM)
+            distance[unknown], owner[unknown] = _nearest_axis(candidates_ijk[axis], candidates[axis],
+                                                              candidates_ijk[unknown], candidates[unknown],
+                                                              _tube_reach(radius[axis], slack_mm))
     return owner, distance <= radius[axis][owner] + slack_mm
+
+
+def _tube_reach(radius: np.ndarray, slack_mm: float) -> float:
+    """A distance (mm) beyond every tube: the largest radius plus the slack, plus a millimetre
+    against rounding (the k-d tree's bound is strict)."""
+    return float(radius.max()) + slack_mm + 1.0
 
 
 def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Projection],
@@ -416,7 +494,7 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
     point); ``nearest`` is what is known of each candidate's nearest kept axis point (see
     :func:`_radius_tube`), or None. Fills the counts of ``info``."""
     h = lattice.spacing_mm
-    ijk = np.round((points_mm + lattice.half_edge_mm) / h).astype(np.int64)
+    ijk = _lattice_indices(points_mm, lattice)
     low = ijk.min(axis=0) - 2
     local = ijk - low
     volume = np.zeros(tuple(local.max(axis=0) + 3), dtype=bool)
@@ -469,8 +547,11 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
     nearest = None
     # 4. explanation: drop axis pieces whose pixels other pieces explain in every view
     if settings.unique_fraction > 0:
-        distance, owner = nearest_with_ties(candidates[axis], candidates, _TIE_MM)
-        owner, in_tube = _radius_tube(candidates, radius, axis, settings.slack_cells * h, (distance, owner))
+        candidate_ijk = ijk[big]
+        distance, owner = _nearest_axis(candidate_ijk[axis], candidates[axis], candidate_ijk, candidates,
+                                        _tube_reach(radius[axis], settings.slack_cells * h))
+        owner, in_tube = _radius_tube(candidates, candidate_ijk, radius, axis, settings.slack_cells * h,
+                                      (distance, owner))
         piece = _axis_pieces(local[big][axis], volume.shape,
                              [centreline_branches(c)[r[axis], k[axis]] for _, _, c, r, k in views])
         tube = np.flatnonzero(in_tube)
