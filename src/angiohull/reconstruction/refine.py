@@ -68,6 +68,8 @@ from typing import Sequence
 
 import numpy as np
 from scipy import ndimage as ndi
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .. import options
@@ -145,10 +147,54 @@ def _axis_pieces(axis_local: np.ndarray, shape: tuple[int, ...], branch_per_view
     ``shape``; ``branch_per_view``: (A,) branch labels per view."""
     volume = np.zeros(shape, dtype=bool)
     volume[tuple(axis_local.T)] = True
-    labels, _ = ndi.label(volume, structure=_TWENTY_SIX)
-    keys = np.stack([labels[tuple(axis_local.T)], *branch_per_view], axis=1)
-    _, piece = np.unique(keys, axis=0, return_inverse=True)
+    keys = [_point_components(volume, axis_local) + 1, *(np.asarray(b, dtype=np.int64) for b in branch_per_view)]
+    # pieces numbered in the lexicographic order of their keys: packed into one integer where it fits
+    sizes = [int(k.max()) + 1 for k in keys]
+    if np.prod(sizes, dtype=object) < 2 ** 63 and all(k.min() >= 0 for k in keys):
+        packed = keys[0]
+        for key, size in zip(keys[1:], sizes[1:]):
+            packed = packed * size + key
+        _, piece = np.unique(packed, return_inverse=True)
+    else:
+        _, piece = np.unique(np.stack(keys, axis=1), axis=0, return_inverse=True)
     return piece.ravel()
+
+
+def _point_components(volume: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """The 26-connected component of ``volume`` (3D bool) holding each of the points ``local``
+    ((N, 3) indices of True voxels, in lattice order): (N,) int, components numbered 0, 1, ... in the
+    order of their first voxel in C order (as :func:`scipy.ndimage.label` numbers them, less one).
+
+    Found on the runs of True voxels along the last axis instead of voxel by voxel: two runs in
+    neighbouring rows (the last axis fixed, the other two indices differing by at most one) are
+    connected when they overlap or touch diagonally (their ends at most one apart)."""
+    nx, ny, nz = volume.shape
+    padded = np.zeros((nx * ny, nz + 2), dtype=bool)
+    padded[:, 1:-1] = volume.reshape(nx * ny, nz)
+    change = np.flatnonzero(padded[:, 1:] != padded[:, :-1])  # in each row: a start, an end, ...
+    row, start, stop = change[0::2] // (nz + 1), change[0::2] % (nz + 1), change[1::2] % (nz + 1)
+    width = nz + 2  # keys row * width + z keep the rows apart even for z - 1 and z + 1
+    start_key, end_key = row * width + start, row * width + stop - 1
+    x, y = row // ny, row % ny
+    first, second = [], []
+    for dx, dy in ((0, 1), (1, -1), (1, 0), (1, 1)):
+        valid = np.flatnonzero((x + dx < nx) & (y + dy >= 0) & (y + dy < ny))
+        other = (row[valid] + dx * ny + dy) * width
+        low = np.searchsorted(end_key, other + start[valid] - 1, side="left")
+        high = np.searchsorted(start_key, other + stop[valid], side="right")
+        count = np.maximum(high - low, 0)
+        first.append(np.repeat(valid, count))
+        second.append(np.repeat(low - np.cumsum(count) + count, count) + np.arange(int(count.sum())))
+    first, second = np.concatenate(first), np.concatenate(second)
+    graph = coo_matrix((np.ones(len(first), dtype=np.int8), (first, second)), shape=(len(row), len(row)))
+    _, run_component = connected_components(graph, directed=False)
+    point_key = (local[:, 0] * ny + local[:, 1]) * width + local[:, 2]
+    component = run_component[np.searchsorted(start_key, point_key, side="right") - 1]
+    # renumber by first appearance (the points are in C order, so is each component's first voxel)
+    _, first_point, inverse = np.unique(component, return_index=True, return_inverse=True)
+    rank = np.empty(len(first_point), dtype=np.int64)
+    rank[np.argsort(first_point)] = np.arange(len(first_point))
+    return rank[inverse.ravel()]
 
 
 def _leaves_hull(p: np.ndarray, q: np.ndarray, hull: np.ndarray) -> np.ndarray:
@@ -502,8 +548,7 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
 
     # 2. connectivity
     bridged = dilated(volume, settings.bridge_cells) if settings.bridge_cells else volume
-    labels, _ = ndi.label(bridged, structure=_TWENTY_SIX)
-    point_labels = labels[tuple(local.T)]
+    point_labels = _point_components(bridged, local)
     sizes = np.bincount(point_labels)
     big = sizes[point_labels] >= settings.component_fraction * len(points_mm)
     info["components_removed"] = int((~big).sum())
