@@ -120,10 +120,28 @@ def clean_mask(mask: np.ndarray, min_neighbours: int = 2, fill_neighbours: int =
     half of their neighbours), while a lone false positive goes.
     """
     mask = np.asarray(mask, dtype=bool)
-    kernel = np.ones((3, 3), dtype=np.int32)
-    kernel[1, 1] = 0
-    neighbours = ndi.convolve(mask.astype(np.int32), kernel, mode="constant")
-    return (mask & (neighbours >= min_neighbours)) | (~mask & (neighbours >= fill_neighbours))
+    out = np.zeros(mask.shape, dtype=bool)
+    hit_rows, hit_cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if fill_neighbours <= 0 or mask.ndim != 2 or len(hit_rows) == 0:
+        kernel = np.ones((3, 3), dtype=np.int32)
+        kernel[1, 1] = 0
+        neighbours = ndi.convolve(mask.astype(np.int32), kernel, mode="constant")
+        return (mask & (neighbours >= min_neighbours)) | (~mask & (neighbours >= fill_neighbours))
+    # only the box around the vessel pixels, grown by one, can change: farther pixels have no
+    # vessel neighbour (and stay background); within it, the neighbours are counted on a copy
+    # padded with a ring of background (the pixels around the box, or outside the image)
+    r0, r1 = max(hit_rows[0] - 1, 0), min(hit_rows[-1] + 2, mask.shape[0])
+    c0, c1 = max(hit_cols[0] - 1, 0), min(hit_cols[-1] + 2, mask.shape[1])
+    crop = mask[r0:r1, c0:c1]
+    padded = np.zeros((r1 - r0 + 2, c1 - c0 + 2), dtype=np.uint8)
+    padded[1:-1, 1:-1] = crop
+    neighbours = np.zeros(crop.shape, dtype=np.uint8)
+    for dr in range(3):
+        for dc in range(3):
+            if dr != 1 or dc != 1:
+                neighbours += padded[dr:dr + crop.shape[0], dc:dc + crop.shape[1]]
+    out[r0:r1, c0:c1] = (crop & (neighbours >= min_neighbours)) | (~crop & (neighbours >= fill_neighbours))
+    return out
 
 
 def centreline_branches(centreline: np.ndarray) -> np.ndarray:
@@ -563,8 +581,11 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
         # distance transforms do not depend on how the image was stored (flipped, transposed)
         storage = canonical_storage(projection)
         projection, mask = storage.apply(projection), storage.apply_image(np.asarray(mask, dtype=bool))
-        uv = projection.project(candidates)
-        px_per_mm = max(projection.focal_lengths_px) / projection.depth_mm(candidates)
+        # Projection.project and .depth_mm from one product
+        homogeneous = projection.homogeneous(candidates)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = homogeneous[:, :2] / homogeneous[:, 2:3]
+        px_per_mm = max(projection.focal_lengths_px) / (homogeneous[:, 2] / np.linalg.norm(projection.matrix[2, :3]))
         cols = np.clip(np.floor(uv[:, 0] + 0.5).astype(np.int64), 0, mask.shape[1] - 1)
         rows = np.clip(np.floor(uv[:, 1] + 0.5).astype(np.int64), 0, mask.shape[0] - 1)
         # the image maps below are computed on the box around the mask and the candidates' pixels,
