@@ -277,13 +277,10 @@ def _rivals(axis_uv: np.ndarray, reach_px: np.ndarray, axis_points: np.ndarray, 
     hull point is tried first, the lowest index of equally far ones: it is the one most likely
     across a gap; the others only when it is not.) ``axis_points`` and ``tube_points`` are (n, 3)
     integer lattice indices into the volume ``hull``."""
-    pairs = cKDTree(axis_uv).sparse_distance_matrix(cKDTree(tube_uv), float(reach_px.max()), output_type="ndarray")
-    axis_index, tube_index = pairs["i"], pairs["j"]
+    axis_index, tube_index = _pairs_within(axis_uv, reach_px, axis_piece, tube_uv, tube_piece)
     rival_piece = tube_piece[tube_index]
-    keep = np.flatnonzero((rival_piece != axis_piece[axis_index]) & (pairs["v"] <= reach_px[axis_index]))
-    axis_index, tube_index, rival_piece = axis_index[keep], tube_index[keep], rival_piece[keep]
     if len(axis_index) == 0:
-        return axis_index.astype(np.int64), rival_piece
+        return axis_index, rival_piece
     offset = tube_points[tube_index] - axis_points[axis_index]
     distance = (offset * offset).sum(axis=1)  # squared, in lattice spacings (an integer)
     axis_index, rival_piece, tube_index = _sorted_pairs(axis_index, rival_piece, distance, tube_index,
@@ -297,6 +294,48 @@ def _rivals(axis_uv: np.ndarray, reach_px: np.ndarray, axis_points: np.ndarray, 
         rest_apart = _leaves_hull(axis_points[axis_index[rest]], tube_points[tube_index[rest]], hull)
         apart[group[rest[rest_apart]]] = True
     return axis_index[first[apart]], rival_piece[first[apart]]
+
+
+def _pairs_within(axis_uv: np.ndarray, reach_px: np.ndarray, axis_piece: np.ndarray, tube_uv: np.ndarray,
+                  tube_piece: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(axis index, tube index) of the pairs of an axis point and a tube point of another piece whose
+    projections lie within the axis point's reach (closed), ordered by axis index: the pairs that
+    ``cKDTree(axis_uv).sparse_distance_matrix(cKDTree(tube_uv), reach_px.max())`` returns, kept where
+    the pieces differ and the distance it computes is within ``reach_px``.
+
+    The tube points are binned on a grid of cells of half the largest reach (a hair more, so that
+    rounding cannot move a point within reach beyond the cells searched); each axis point reads the
+    cells of the rows within reach, and the distances are computed as the tree does (the squared
+    differences summed, compared with the largest reach squared, then the square root)."""
+    largest = float(reach_px.max())
+    split = 2
+    cell = largest / split * (1.0 + 1e-6)
+    low = np.minimum(axis_uv.min(axis=0), tube_uv.min(axis=0))
+    tube_cell = np.floor((tube_uv - low) / cell).astype(np.int64) + split
+    axis_cell = np.floor((axis_uv - low) / cell).astype(np.int64) + split
+    width = int(max(tube_cell[:, 1].max(), axis_cell[:, 1].max())) + split + 1
+    tube_key = tube_cell[:, 0] * width + tube_cell[:, 1]
+    by_key = np.argsort(tube_key, kind="stable")
+    sorted_key = tube_key[by_key]
+    # rows of cells -split..split; the columns of a row that a point within reach can lie in
+    rows = np.arange(-split, split + 1)
+    columns = np.minimum(split, 1 + np.floor(np.sqrt(split * split - np.maximum(np.abs(rows) - 1, 0) ** 2)).astype(np.int64))
+    centre = (axis_cell[:, 0] * width + axis_cell[:, 1])[:, None] + rows[None, :] * width
+    first = np.searchsorted(sorted_key, (centre - columns[None, :]).ravel(), side="left")
+    count = np.searchsorted(sorted_key, (centre + columns[None, :] + 1).ravel(), side="left") - first
+    start = np.cumsum(count) - count
+    tube_index = by_key[np.repeat(first - start, count) + np.arange(int(count.sum()))]
+    axis_index = np.repeat(np.arange(len(axis_uv)), count.reshape(len(axis_uv), -1).sum(axis=1))
+    other = np.flatnonzero(tube_piece[tube_index] != axis_piece[axis_index])
+    axis_index, tube_index = axis_index[other], tube_index[other]
+    du = axis_uv[axis_index, 0] - tube_uv[tube_index, 0]
+    dv = axis_uv[axis_index, 1] - tube_uv[tube_index, 1]
+    squared = du * du
+    squared += dv * dv
+    near = np.flatnonzero(squared <= largest * largest)
+    axis_index, tube_index = axis_index[near], tube_index[near]
+    near = np.sqrt(squared[near]) <= reach_px[axis_index]
+    return axis_index[near], tube_index[near]
 
 
 def _sorted_pairs(axis_index: np.ndarray, rival_piece: np.ndarray, distance: np.ndarray, tube_index: np.ndarray,
