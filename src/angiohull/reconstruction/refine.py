@@ -324,18 +324,18 @@ def _pairs_within(axis_uv: np.ndarray, reach_px: np.ndarray, axis_piece: np.ndar
     first = np.searchsorted(sorted_key, (centre - columns[None, :]).ravel(), side="left")
     count = np.searchsorted(sorted_key, (centre + columns[None, :] + 1).ravel(), side="left") - first
     start = np.cumsum(count) - count
-    tube_index = by_key[np.repeat(first - start, count) + np.arange(int(count.sum()))]
-    axis_index = np.repeat(np.arange(len(axis_uv)), count.reshape(len(axis_uv), -1).sum(axis=1))
-    other = np.flatnonzero(tube_piece[tube_index] != axis_piece[axis_index])
-    axis_index, tube_index = axis_index[other], tube_index[other]
-    du = axis_uv[axis_index, 0] - tube_uv[tube_index, 0]
-    dv = axis_uv[axis_index, 1] - tube_uv[tube_index, 1]
+    position = np.repeat(first - start, count) + np.arange(int(count.sum()))  # in the sorted tube points
+    per_axis = count.reshape(len(axis_uv), -1).sum(axis=1)
+    other = np.flatnonzero(tube_piece[by_key][position] != np.repeat(axis_piece, per_axis))
+    axis_index, position = np.repeat(np.arange(len(axis_uv)), per_axis)[other], position[other]
+    du = axis_uv[:, 0][axis_index] - tube_uv[by_key, 0][position]
+    dv = axis_uv[:, 1][axis_index] - tube_uv[by_key, 1][position]
     squared = du * du
     squared += dv * dv
     near = np.flatnonzero(squared <= largest * largest)
-    axis_index, tube_index = axis_index[near], tube_index[near]
+    axis_index, position = axis_index[near], position[near]
     near = np.sqrt(squared[near]) <= reach_px[axis_index]
-    return axis_index[near], tube_index[near]
+    return axis_index[near], by_key[position[near]]
 
 
 def _sorted_pairs(axis_index: np.ndarray, rival_piece: np.ndarray, distance: np.ndarray, tube_index: np.ndarray,
