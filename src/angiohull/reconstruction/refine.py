@@ -219,29 +219,35 @@ def _leaves_hull(p: np.ndarray, q: np.ndarray, hull: np.ndarray) -> np.ndarray:
     """(K,) bool: the straight segment between the lattice points p[k] and q[k] ((K, 3) integer
     indices of points of ``hull``) passes a lattice point outside ``hull``: sampled every half
     lattice spacing, each sample rounded to its nearest lattice point (an offset from p[k] half-way
-    between two lattice steps goes to the even one).
+    between two lattice steps goes to the even one). See :func:`_gaps`."""
+    strides = np.array(hull.strides, dtype=np.int64) // hull.itemsize
+    delta = q - p
+    return _gaps(p @ strides, delta[:, 0], delta[:, 1], delta[:, 2], hull)
+
+
+def _gaps(start: np.ndarray, dx: np.ndarray, dy: np.ndarray, dz: np.ndarray, hull: np.ndarray) -> np.ndarray:
+    """:func:`_leaves_hull` of the segments from the lattice points of flat index ``start`` (into
+    the C-contiguous ``hull``) by the integer steps (dx, dy, dz).
 
     Every sample lies in the box of its segment's ends, so inside the volume. The samples' offsets
-    from p[k] depend on q[k] - p[k] alone, and the segments between rivals share few differences
-    (they run along viewing rays): the lattice points a difference's samples visit are listed once
-    per difference, as flat offsets into ``hull`` without repeats (consecutive samples often round
-    to the same lattice point) and without the ends (in the hull), and every segment reads its
-    points through that list."""
-    gap = np.zeros(len(p), dtype=bool)
-    if len(p) == 0:
+    from the start depend on the step alone, and the segments between rivals share few steps (they
+    run along viewing rays): the lattice points a step's samples visit are listed once per step, as
+    flat offsets into ``hull`` without repeats (consecutive samples often round to the same lattice
+    point) and without the ends (in the hull), and every segment reads its points through that
+    list."""
+    gap = np.zeros(len(start), dtype=bool)
+    if len(start) == 0:
         return gap
-    delta = q - p
     strides = np.array(hull.strides, dtype=np.int64) // hull.itemsize
-    low = delta.min(axis=0)
-    span = delta.max(axis=0) - low + 1
-    code = ((delta[:, 0] - low[0]) * span[1] + (delta[:, 1] - low[1])) * span[2] + (delta[:, 2] - low[2])
+    span = 2 * np.array(hull.shape, dtype=np.int64) - 1  # a step's coordinates lie within +-(shape - 1)
+    code = ((dx + (hull.shape[0] - 1)) * span[1] + (dy + (hull.shape[1] - 1))) * span[2] + (dz + (hull.shape[2] - 1))
     unique_code, which = np.unique(code, return_inverse=True)
     which = which.ravel()
     unique = np.stack([unique_code // (span[1] * span[2]), (unique_code // span[2]) % span[1], unique_code % span[2]],
-                      axis=1) + low
+                      axis=1) - (np.array(hull.shape, dtype=np.int64) - 1)
     step = unique.astype(np.float64)
     steps = np.maximum(np.ceil(2.0 * np.sqrt((step * step).sum(axis=1))).astype(np.int64), 1)
-    # samples 1 .. steps - 1 of each difference, as flat offsets
+    # samples 1 .. steps - 1 of each step, as flat offsets
     count = steps - 1
     first = np.cumsum(count) - count
     owner = np.repeat(np.arange(len(unique)), count)
@@ -256,15 +262,15 @@ def _leaves_hull(p: np.ndarray, q: np.ndarray, hull: np.ndarray) -> np.ndarray:
     table = table[new]
     count = np.bincount(owner[new], minlength=len(unique))
     first = np.cumsum(count) - count
-    # every segment's lattice points: flat index of its start plus its difference's offsets
+    # every segment's lattice points: its start plus its step's offsets
     count = count[which]
     tested = np.flatnonzero(count)
     if len(tested) == 0:
         return gap
-    start = np.cumsum(count) - count
-    position = np.repeat(first[which] - start, count) + np.arange(int(start[-1] + count[-1]))
-    inside = hull.ravel()[np.repeat(p @ strides, count) + table[position]]
-    gap[tested] = ~np.logical_and.reduceat(inside, start[tested])
+    segment_start = np.cumsum(count) - count
+    position = np.repeat(first[which] - segment_start, count) + np.arange(int(segment_start[-1] + count[-1]))
+    inside = hull.ravel()[np.repeat(start, count) + table[position]]
+    gap[tested] = ~np.logical_and.reduceat(inside, segment_start[tested])
     return gap
 
 
@@ -281,18 +287,24 @@ def _rivals(axis_uv: np.ndarray, reach_px: np.ndarray, axis_points: np.ndarray, 
     rival_piece = tube_piece[tube_index]
     if len(axis_index) == 0:
         return axis_index, rival_piece
-    offset = tube_points[tube_index] - axis_points[axis_index]
-    distance = (offset * offset).sum(axis=1)  # squared, in lattice spacings (an integer)
+    axis_xyz, tube_xyz = np.ascontiguousarray(axis_points.T), np.ascontiguousarray(tube_points.T)
+    offset = [t[tube_index] - a[axis_index] for a, t in zip(axis_xyz, tube_xyz)]
+    distance = offset[0] * offset[0] + offset[1] * offset[1] + offset[2] * offset[2]  # squared, in lattice spacings
     axis_index, rival_piece, tube_index = _sorted_pairs(axis_index, rival_piece, distance, tube_index,
                                                         len(axis_points), int(tube_piece.max()) + 1, len(tube_points))
     group_start = np.r_[True, (np.diff(axis_index) != 0) | (np.diff(rival_piece) != 0)]
     group = np.cumsum(group_start) - 1
     first = np.flatnonzero(group_start)
-    apart = _leaves_hull(axis_points[axis_index[first]], tube_points[tube_index[first]], hull)
+    axis_flat = axis_points @ (np.array(hull.strides, dtype=np.int64) // hull.itemsize)
+
+    def gaps(pairs: np.ndarray) -> np.ndarray:
+        a, t = axis_index[pairs], tube_index[pairs]
+        return _gaps(axis_flat[a], *(tc[t] - ac[a] for ac, tc in zip(axis_xyz, tube_xyz)), hull)
+
+    apart = gaps(first)
     rest = np.flatnonzero(~group_start & ~apart[group])
     if len(rest):
-        rest_apart = _leaves_hull(axis_points[axis_index[rest]], tube_points[tube_index[rest]], hull)
-        apart[group[rest[rest_apart]]] = True
+        apart[group[rest[gaps(rest)]]] = True
     return axis_index[first[apart]], rival_piece[first[apart]]
 
 
