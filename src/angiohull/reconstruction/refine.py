@@ -252,7 +252,9 @@ def _gaps(start: np.ndarray, dx: np.ndarray, dy: np.ndarray, dz: np.ndarray, hul
     first = np.cumsum(count) - count
     owner = np.repeat(np.arange(len(unique)), count)
     k = np.arange(len(owner)) - first[owner] + 1
-    table = np.rint(step[owner] * (k / steps[owner])[:, None]).astype(np.int64) @ strides
+    fraction = k / steps[owner]
+    table = (np.rint(step[:, 0][owner] * fraction) * float(strides[0]) + np.rint(step[:, 1][owner] * fraction) * float(strides[1])
+             + np.rint(step[:, 2][owner] * fraction) * float(strides[2])).astype(np.int64)  # exact: integers below 2**53
     # the samples along a segment move monotonically on each axis, so a lattice point's samples
     # are consecutive: keep the first of each run, and drop the ends
     previous = np.empty_like(table)
@@ -322,12 +324,12 @@ def _pairs_within(axis_uv: np.ndarray, reach_px: np.ndarray, axis_piece: np.ndar
     largest = float(reach_px.max())
     split = 2
     cell = largest / split * (1.0 + 1e-6)
-    low = np.minimum(axis_uv.min(axis=0), tube_uv.min(axis=0))
+    low = np.array([min(axis_uv[:, 0].min(), tube_uv[:, 0].min()), min(axis_uv[:, 1].min(), tube_uv[:, 1].min())])
     tube_cell = np.floor((tube_uv - low) / cell).astype(np.int64) + split
     axis_cell = np.floor((axis_uv - low) / cell).astype(np.int64) + split
     width = int(max(tube_cell[:, 1].max(), axis_cell[:, 1].max())) + split + 1
     tube_key = tube_cell[:, 0] * width + tube_cell[:, 1]
-    by_key = np.argsort(tube_key, kind="stable")
+    by_key = np.argsort(tube_key)
     sorted_key = tube_key[by_key]
     # rows of cells -split..split; the columns of a row that a point within reach can lie in
     rows = np.arange(-split, split + 1)
