@@ -159,13 +159,11 @@ def centreline_branches(centreline: np.ndarray) -> np.ndarray:
     return np.where(junction, clusters + n_runs, runs)
 
 
-def _axis_pieces(axis_local: np.ndarray, shape: tuple[int, ...], branch_per_view: Sequence[np.ndarray]) -> np.ndarray:
+def _axis_pieces(axis_local: np.ndarray, branch_per_view: Sequence[np.ndarray]) -> np.ndarray:
     """Piece index (0..m-1) of every axis point: connected on the lattice (26-neighbourhood) and on
-    the same 2D centreline branch in every view. ``axis_local``: (A, 3) lattice indices in a volume of
-    ``shape``; ``branch_per_view``: (A,) branch labels per view."""
-    volume = np.zeros(shape, dtype=bool)
-    volume[tuple(axis_local.T)] = True
-    keys = [_point_components(volume, axis_local) + 1, *(np.asarray(b, dtype=np.int64) for b in branch_per_view)]
+    the same 2D centreline branch in every view. ``axis_local``: (A, 3) lattice indices, in lattice
+    order; ``branch_per_view``: (A,) branch labels per view."""
+    keys = [_neighbour_components(axis_local) + 1, *(np.asarray(b, dtype=np.int64) for b in branch_per_view)]
     # pieces numbered in the lexicographic order of their keys: packed into one integer where it fits
     sizes = [int(k.max()) + 1 for k in keys]
     if np.prod(sizes, dtype=object) < 2 ** 63 and all(k.min() >= 0 for k in keys):
@@ -209,6 +207,29 @@ def _point_components(volume: np.ndarray, local: np.ndarray) -> np.ndarray:
     point_key = (local[:, 0] * ny + local[:, 1]) * width + local[:, 2]
     component = run_component[np.searchsorted(start_key, point_key, side="right") - 1]
     # renumber by first appearance (the points are in C order, so is each component's first voxel)
+    _, first_point, inverse = np.unique(component, return_index=True, return_inverse=True)
+    rank = np.empty(len(first_point), dtype=np.int64)
+    rank[np.argsort(first_point)] = np.arange(len(first_point))
+    return rank[inverse.ravel()]
+
+
+def _neighbour_components(local: np.ndarray) -> np.ndarray:
+    """:func:`_point_components` of the volume that holds just the points ``local`` ((N, 3)
+    distinct lattice indices in lattice order): the points joined by an edge to each of their
+    26-neighbours among them (few points: no volume)."""
+    shape = local.max(axis=0) + 3  # a margin of one beyond the points on both sides: no wrapping
+    strides = np.array([shape[1] * shape[2], shape[2], 1], dtype=np.int64)
+    flat = (local + 1) @ strides  # increasing
+    first, second = [], []
+    for offset in ((0, 0, 1), (0, 1, -1), (0, 1, 0), (0, 1, 1), *((1, a, b) for a in (-1, 0, 1) for b in (-1, 0, 1))):
+        target = flat + np.array(offset, dtype=np.int64) @ strides
+        position = np.minimum(np.searchsorted(flat, target), len(flat) - 1)
+        hit = np.flatnonzero(flat[position] == target)
+        first.append(hit)
+        second.append(position[hit])
+    first, second = np.concatenate(first), np.concatenate(second)
+    graph = coo_matrix((np.ones(len(first), dtype=np.int8), (first, second)), shape=(len(flat), len(flat)))
+    _, component = connected_components(graph, directed=False)
     _, first_point, inverse = np.unique(component, return_index=True, return_inverse=True)
     rank = np.empty(len(first_point), dtype=np.int64)
     rank[np.argsort(first_point)] = np.arange(len(first_point))
@@ -697,8 +718,7 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
                                         _tube_reach(radius[axis], settings.slack_cells * h))
         owner, in_tube = _radius_tube(candidates, candidate_ijk, radius, axis, settings.slack_cells * h,
                                       (distance, owner))
-        piece = _axis_pieces(local[big][axis], volume.shape,
-                             [centreline_branches(c)[r[axis], k[axis]] for _, _, c, r, k in views])
+        piece = _axis_pieces(local[big][axis], [centreline_branches(c)[r[axis], k[axis]] for _, _, c, r, k in views])
         tube = np.flatnonzero(in_tube)
         tube_piece = piece[owner[tube]]
         hull = np.zeros_like(volume)
