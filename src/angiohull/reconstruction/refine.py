@@ -105,7 +105,6 @@ class RefineSettings:
 
 
 _EIGHT = np.ones((3, 3), dtype=bool)  # 8-neighbourhood in 2D
-_TWENTY_SIX = np.ones((3, 3, 3), dtype=bool)  # 26-neighbourhood on the lattice
 
 REFINED = RefineSettings()
 """The settings of ``preset="refined"`` (the same for every case; measured in docs/beyond-the-paper.md)."""
@@ -236,19 +235,12 @@ def _neighbour_components(local: np.ndarray) -> np.ndarray:
     return rank[inverse.ravel()]
 
 
-def _leaves_hull(p: np.ndarray, q: np.ndarray, hull: np.ndarray) -> np.ndarray:
-    """(K,) bool: the straight segment between the lattice points p[k] and q[k] ((K, 3) integer
-    indices of points of ``hull``) passes a lattice point outside ``hull``: sampled every half
-    lattice spacing, each sample rounded to its nearest lattice point (an offset from p[k] half-way
-    between two lattice steps goes to the even one). See :func:`_gaps`."""
-    strides = np.array(hull.strides, dtype=np.int64) // hull.itemsize
-    delta = q - p
-    return _gaps(p @ strides, delta[:, 0], delta[:, 1], delta[:, 2], hull)
-
-
 def _gaps(start: np.ndarray, dx: np.ndarray, dy: np.ndarray, dz: np.ndarray, hull: np.ndarray) -> np.ndarray:
-    """:func:`_leaves_hull` of the segments from the lattice points of flat index ``start`` (into
-    the C-contiguous ``hull``) by the integer steps (dx, dy, dz).
+    """(K,) bool: the straight segment from the lattice point of flat index start[k] (into the
+    C-contiguous bool volume ``hull``) by the integer step (dx[k], dy[k], dz[k]), both ends in the
+    hull, passes a lattice point outside ``hull``: sampled every half lattice spacing, each sample
+    rounded to its nearest lattice point (an offset from the start half-way between two lattice
+    steps goes to the even one).
 
     Every sample lies in the box of its segment's ends, so inside the volume. The samples' offsets
     from the start depend on the step alone, and the segments between rivals share few steps (they
