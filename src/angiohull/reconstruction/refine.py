@@ -110,6 +110,22 @@ REFINED = RefineSettings()
 """The settings of ``preset="refined"`` (the same for every case; measured in docs/beyond-the-paper.md)."""
 
 
+def _column_min(a: np.ndarray) -> np.ndarray:
+    """``a.min(axis=0)`` of an (n, d) array, column by column (NumPy reduces a narrow array along
+    its long axis several times slower)."""
+    return np.array([a[:, k].min() for k in range(a.shape[1])])
+
+
+def _column_max(a: np.ndarray) -> np.ndarray:
+    """``a.max(axis=0)``, column by column (see :func:`_column_min`)."""
+    return np.array([a[:, k].max() for k in range(a.shape[1])])
+
+
+def _flat_index(ijk: np.ndarray, strides: np.ndarray) -> np.ndarray:
+    """``ijk @ strides`` for (n, 3) integer indices, column by column (exact integers)."""
+    return ijk[:, 0] * strides[0] + ijk[:, 1] * strides[1] + ijk[:, 2] * strides[2]
+
+
 def clean_mask(mask: np.ndarray, min_neighbours: int = 2, fill_neighbours: int = 5) -> np.ndarray:
     """Remove isolated specks and fill pinholes of a bool mask.
 
@@ -216,9 +232,9 @@ def _neighbour_components(local: np.ndarray) -> np.ndarray:
     """:func:`_point_components` of the volume that holds just the points ``local`` ((N, 3)
     distinct lattice indices in lattice order): the points joined by an edge to each of their
     26-neighbours among them (few points: no volume)."""
-    shape = local.max(axis=0) + 3  # a margin of one beyond the points on both sides: no wrapping
+    shape = _column_max(local) + 3  # a margin of one beyond the points on both sides: no wrapping
     strides = np.array([shape[1] * shape[2], shape[2], 1], dtype=np.int64)
-    flat = (local + 1) @ strides  # increasing
+    flat = _flat_index(local + 1, strides)  # increasing
     first, second = [], []
     for offset in ((0, 0, 1), (0, 1, -1), (0, 1, 0), (0, 1, 1), *((1, a, b) for a in (-1, 0, 1) for b in (-1, 0, 1))):
         target = flat + np.array(offset, dtype=np.int64) @ strides
@@ -489,6 +505,9 @@ def _lattice_indices(points_mm: np.ndarray, lattice: Lattice) -> np.ndarray:
 def _lattice_order(points_mm: np.ndarray, lattice: Lattice) -> np.ndarray:
     """The permutation that sorts lattice points by their (i, j, k) lattice indices."""
     ijk = _lattice_indices(points_mm, lattice)
+    k = lattice.resolution
+    if len(ijk) and ijk.min() >= 0 and ijk.max() < k:  # one key, sorted stably: the order of the lexsort below
+        return np.argsort((ijk[:, 0] * k + ijk[:, 1]) * k + ijk[:, 2], kind="stable")
     return np.lexsort((ijk[:, 2], ijk[:, 1], ijk[:, 0]))
 
 
@@ -587,15 +606,15 @@ def _nearest_axis(axis_ijk: np.ndarray, axis_mm: np.ndarray, query_ijk: np.ndarr
         return distance, index
     cells = max(int(np.sqrt(n)) for n in _SHELLS)
     query_ijk = query_ijk[found]
-    low = np.minimum(axis_ijk.min(axis=0), query_ijk.min(axis=0)) - cells
-    shape = np.maximum(axis_ijk.max(axis=0), query_ijk.max(axis=0)) - low + cells + 1
+    low = np.minimum(_column_min(axis_ijk), _column_min(query_ijk)) - cells
+    shape = np.maximum(_column_max(axis_ijk), _column_max(query_ijk)) - low + cells + 1
     strides = np.array([shape[1] * shape[2], shape[2], 1], dtype=np.int64)
-    axis_flat = (axis_ijk - low) @ strides  # increasing: the axis points are in lattice order
+    axis_flat = _flat_index(axis_ijk - low, strides)  # increasing: the axis points are in lattice order
     occupied = np.zeros(int(np.prod(shape)), dtype=bool)
     occupied[axis_flat] = True
     offset = query_ijk - axis_ijk[index[found]]
-    length = (offset * offset).sum(axis=1)  # squared lattice distance to the nearest
-    query_flat = (query_ijk - low) @ strides
+    length = offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1] + offset[:, 2] * offset[:, 2]  # squared lattice distance
+    query_flat = _flat_index(query_ijk - low, strides)
     by_length = np.argsort(length, kind="stable")
     bounds = np.searchsorted(length[by_length], np.arange(cells * cells + 2))
     for n, shell in _SHELLS.items():
@@ -651,9 +670,9 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
     :func:`_radius_tube`), or None. Fills the counts of ``info``."""
     h = lattice.spacing_mm
     ijk = _lattice_indices(points_mm, lattice)
-    low = ijk.min(axis=0) - 2
+    low = _column_min(ijk) - 2
     local = ijk - low
-    volume = np.zeros(tuple(local.max(axis=0) + 3), dtype=bool)
+    volume = np.zeros(tuple(_column_max(local) + 3), dtype=bool)
     volume[tuple(local.T)] = True
 
     # 2. connectivity
