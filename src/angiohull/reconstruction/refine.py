@@ -68,6 +68,8 @@ from typing import Sequence
 
 import numpy as np
 from scipy import ndimage as ndi
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .. import options
@@ -103,10 +105,25 @@ class RefineSettings:
 
 
 _EIGHT = np.ones((3, 3), dtype=bool)  # 8-neighbourhood in 2D
-_TWENTY_SIX = np.ones((3, 3, 3), dtype=bool)  # 26-neighbourhood on the lattice
 
 REFINED = RefineSettings()
 """The settings of ``preset="refined"`` (the same for every case; measured in docs/beyond-the-paper.md)."""
+
+
+def _column_min(a: np.ndarray) -> np.ndarray:
+    """``a.min(axis=0)`` of an (n, d) array, column by column (NumPy reduces a narrow array along
+    its long axis several times slower)."""
+    return np.array([a[:, k].min() for k in range(a.shape[1])])
+
+
+def _column_max(a: np.ndarray) -> np.ndarray:
+    """``a.max(axis=0)``, column by column (see :func:`_column_min`)."""
+    return np.array([a[:, k].max() for k in range(a.shape[1])])
+
+
+def _flat_index(ijk: np.ndarray, strides: np.ndarray) -> np.ndarray:
+    """``ijk @ strides`` for (n, 3) integer indices, column by column (exact integers)."""
+    return ijk[:, 0] * strides[0] + ijk[:, 1] * strides[1] + ijk[:, 2] * strides[2]
 
 
 def clean_mask(mask: np.ndarray, min_neighbours: int = 2, fill_neighbours: int = 5) -> np.ndarray:
@@ -118,10 +135,28 @@ def clean_mask(mask: np.ndarray, min_neighbours: int = 2, fill_neighbours: int =
     half of their neighbours), while a lone false positive goes.
     """
     mask = np.asarray(mask, dtype=bool)
-    kernel = np.ones((3, 3), dtype=np.int32)
-    kernel[1, 1] = 0
-    neighbours = ndi.convolve(mask.astype(np.int32), kernel, mode="constant")
-    return (mask & (neighbours >= min_neighbours)) | (~mask & (neighbours >= fill_neighbours))
+    out = np.zeros(mask.shape, dtype=bool)
+    hit_rows, hit_cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if fill_neighbours <= 0 or mask.ndim != 2 or len(hit_rows) == 0:
+        kernel = np.ones((3, 3), dtype=np.int32)
+        kernel[1, 1] = 0
+        neighbours = ndi.convolve(mask.astype(np.int32), kernel, mode="constant")
+        return (mask & (neighbours >= min_neighbours)) | (~mask & (neighbours >= fill_neighbours))
+    # only the box around the vessel pixels, grown by one, can change: farther pixels have no
+    # vessel neighbour (and stay background); within it, the neighbours are counted on a copy
+    # padded with a ring of background (the pixels around the box, or outside the image)
+    r0, r1 = max(hit_rows[0] - 1, 0), min(hit_rows[-1] + 2, mask.shape[0])
+    c0, c1 = max(hit_cols[0] - 1, 0), min(hit_cols[-1] + 2, mask.shape[1])
+    crop = mask[r0:r1, c0:c1]
+    padded = np.zeros((r1 - r0 + 2, c1 - c0 + 2), dtype=np.uint8)
+    padded[1:-1, 1:-1] = crop
+    neighbours = np.zeros(crop.shape, dtype=np.uint8)
+    for dr in range(3):
+        for dc in range(3):
+            if dr != 1 or dc != 1:
+                neighbours += padded[dr:dr + crop.shape[0], dc:dc + crop.shape[1]]
+    out[r0:r1, c0:c1] = (crop & (neighbours >= min_neighbours)) | (~crop & (neighbours >= fill_neighbours))
+    return out
 
 
 def centreline_branches(centreline: np.ndarray) -> np.ndarray:
@@ -139,43 +174,134 @@ def centreline_branches(centreline: np.ndarray) -> np.ndarray:
     return np.where(junction, clusters + n_runs, runs)
 
 
-def _axis_pieces(axis_local: np.ndarray, shape: tuple[int, ...], branch_per_view: Sequence[np.ndarray]) -> np.ndarray:
+def _axis_pieces(axis_local: np.ndarray, branch_per_view: Sequence[np.ndarray]) -> np.ndarray:
     """Piece index (0..m-1) of every axis point: connected on the lattice (26-neighbourhood) and on
-    the same 2D centreline branch in every view. ``axis_local``: (A, 3) lattice indices in a volume of
-    ``shape``; ``branch_per_view``: (A,) branch labels per view."""
-    volume = np.zeros(shape, dtype=bool)
-    volume[tuple(axis_local.T)] = True
-    labels, _ = ndi.label(volume, structure=_TWENTY_SIX)
-    keys = np.stack([labels[tuple(axis_local.T)], *branch_per_view], axis=1)
-    _, piece = np.unique(keys, axis=0, return_inverse=True)
+    the same 2D centreline branch in every view. ``axis_local``: (A, 3) lattice indices, in lattice
+    order; ``branch_per_view``: (A,) branch labels per view."""
+    keys = [_neighbour_components(axis_local) + 1, *(np.asarray(b, dtype=np.int64) for b in branch_per_view)]
+    # pieces numbered in the lexicographic order of their keys: packed into one integer where it fits
+    sizes = [int(k.max()) + 1 for k in keys]
+    if np.prod(sizes, dtype=object) < 2 ** 63 and all(k.min() >= 0 for k in keys):
+        packed = keys[0]
+        for key, size in zip(keys[1:], sizes[1:]):
+            packed = packed * size + key
+        _, piece = np.unique(packed, return_inverse=True)
+    else:
+        _, piece = np.unique(np.stack(keys, axis=1), axis=0, return_inverse=True)
     return piece.ravel()
 
 
-def _leaves_hull(p: np.ndarray, q: np.ndarray, hull: np.ndarray, block: int = 16) -> np.ndarray:
-    """(K,) bool: the straight segment between the lattice points p[k] and q[k] ((K, 3) integer
-    indices into ``hull``) passes a lattice point outside ``hull``: sampled every half lattice
-    spacing, each sample rounded to its nearest lattice point (an offset from p[k] half-way between
-    two lattice steps goes to the even one).
+def _point_components(volume: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """The 26-connected component of ``volume`` (3D bool) holding each of the points ``local``
+    ((N, 3) indices of True voxels, in lattice order): (N,) int, components numbered 0, 1, ... in the
+    order of their first voxel in C order (as :func:`scipy.ndimage.label` numbers them, less one).
 
-    Every sample lies in the box of its segment's ends, so inside the volume. The samples of the
-    segments still without a gap are taken ``block`` steps at a time."""
-    delta = (q - p).astype(np.float64)
-    steps = np.maximum(np.ceil(2.0 * np.sqrt((delta * delta).sum(axis=1))).astype(np.int64), 1)
+    Found on the runs of True voxels along the last axis instead of voxel by voxel: two runs in
+    neighbouring rows (the last axis fixed, the other two indices differing by at most one) are
+    connected when they overlap or touch diagonally (their ends at most one apart)."""
+    nx, ny, nz = volume.shape
+    padded = np.zeros((nx * ny, nz + 2), dtype=bool)
+    padded[:, 1:-1] = volume.reshape(nx * ny, nz)
+    change = np.flatnonzero(padded[:, 1:] != padded[:, :-1])  # in each row: a start, an end, ...
+    row, start, stop = change[0::2] // (nz + 1), change[0::2] % (nz + 1), change[1::2] % (nz + 1)
+    width = nz + 2  # keys row * width + z keep the rows apart even for z - 1 and z + 1
+    start_key, end_key = row * width + start, row * width + stop - 1
+    x, y = row // ny, row % ny
+    first, second = [], []
+    for dx, dy in ((0, 1), (1, -1), (1, 0), (1, 1)):
+        valid = np.flatnonzero((x + dx < nx) & (y + dy >= 0) & (y + dy < ny))
+        other = (row[valid] + dx * ny + dy) * width
+        low = np.searchsorted(end_key, other + start[valid] - 1, side="left")
+        high = np.searchsorted(start_key, other + stop[valid], side="right")
+        count = np.maximum(high - low, 0)
+        first.append(np.repeat(valid, count))
+        second.append(np.repeat(low - np.cumsum(count) + count, count) + np.arange(int(count.sum())))
+    first, second = np.concatenate(first), np.concatenate(second)
+    graph = coo_matrix((np.ones(len(first), dtype=np.int8), (first, second)), shape=(len(row), len(row)))
+    _, run_component = connected_components(graph, directed=False)
+    point_key = (local[:, 0] * ny + local[:, 1]) * width + local[:, 2]
+    component = run_component[np.searchsorted(start_key, point_key, side="right") - 1]
+    # renumber by first appearance (the points are in C order, so is each component's first voxel)
+    _, first_point, inverse = np.unique(component, return_index=True, return_inverse=True)
+    rank = np.empty(len(first_point), dtype=np.int64)
+    rank[np.argsort(first_point)] = np.arange(len(first_point))
+    return rank[inverse.ravel()]
+
+
+def _neighbour_components(local: np.ndarray) -> np.ndarray:
+    """:func:`_point_components` of the volume that holds just the points ``local`` ((N, 3)
+    distinct lattice indices in lattice order): the points joined by an edge to each of their
+    26-neighbours among them (few points: no volume)."""
+    shape = _column_max(local) + 3  # a margin of one beyond the points on both sides: no wrapping
+    strides = np.array([shape[1] * shape[2], shape[2], 1], dtype=np.int64)
+    flat = _flat_index(local + 1, strides)  # increasing
+    first, second = [], []
+    for offset in ((0, 0, 1), (0, 1, -1), (0, 1, 0), (0, 1, 1), *((1, a, b) for a in (-1, 0, 1) for b in (-1, 0, 1))):
+        target = flat + np.array(offset, dtype=np.int64) @ strides
+        position = np.minimum(np.searchsorted(flat, target), len(flat) - 1)
+        hit = np.flatnonzero(flat[position] == target)
+        first.append(hit)
+        second.append(position[hit])
+    first, second = np.concatenate(first), np.concatenate(second)
+    graph = coo_matrix((np.ones(len(first), dtype=np.int8), (first, second)), shape=(len(flat), len(flat)))
+    _, component = connected_components(graph, directed=False)
+    _, first_point, inverse = np.unique(component, return_index=True, return_inverse=True)
+    rank = np.empty(len(first_point), dtype=np.int64)
+    rank[np.argsort(first_point)] = np.arange(len(first_point))
+    return rank[inverse.ravel()]
+
+
+def _gaps(start: np.ndarray, dx: np.ndarray, dy: np.ndarray, dz: np.ndarray, hull: np.ndarray) -> np.ndarray:
+    """(K,) bool: the straight segment from the lattice point of flat index start[k] (into the
+    C-contiguous bool volume ``hull``) by the integer step (dx[k], dy[k], dz[k]), both ends in the
+    hull, passes a lattice point outside ``hull``: sampled every half lattice spacing, each sample
+    rounded to its nearest lattice point (an offset from the start half-way between two lattice
+    steps goes to the even one).
+
+    Every sample lies in the box of its segment's ends, so inside the volume. The samples' offsets
+    from the start depend on the step alone, and the segments between rivals share few steps (they
+    run along viewing rays): the lattice points a step's samples visit are listed once per step, as
+    flat offsets into ``hull`` without repeats (consecutive samples often round to the same lattice
+    point) and without the ends (in the hull), and every segment reads its points through that
+    list."""
+    gap = np.zeros(len(start), dtype=bool)
+    if len(start) == 0:
+        return gap
     strides = np.array(hull.strides, dtype=np.int64) // hull.itemsize
-    flat = hull.ravel()
-    start_index = p @ strides
-    gap = np.zeros(len(p), dtype=bool)
-    active = np.flatnonzero(steps > 1)
-    start = 1
-    while len(active):
-        count = np.minimum(steps[active] - start, block)  # samples of each active segment in this block
-        segment = np.repeat(active, count)
-        k = start + np.arange(len(segment)) - np.repeat(np.cumsum(count) - count, count)
-        offset = np.rint(delta[segment] * (k / steps[segment])[:, None]).astype(np.int64)
-        outside = ~flat[start_index[segment] + offset @ strides]
-        gap[segment[outside]] = True
-        start += block
-        active = active[~gap[active] & (steps[active] > start)]
+    span = 2 * np.array(hull.shape, dtype=np.int64) - 1  # a step's coordinates lie within +-(shape - 1)
+    code = ((dx + (hull.shape[0] - 1)) * span[1] + (dy + (hull.shape[1] - 1))) * span[2] + (dz + (hull.shape[2] - 1))
+    unique_code, which = np.unique(code, return_inverse=True)
+    which = which.ravel()
+    unique = np.stack([unique_code // (span[1] * span[2]), (unique_code // span[2]) % span[1], unique_code % span[2]],
+                      axis=1) - (np.array(hull.shape, dtype=np.int64) - 1)
+    step = unique.astype(np.float64)
+    steps = np.maximum(np.ceil(2.0 * np.sqrt((step * step).sum(axis=1))).astype(np.int64), 1)
+    # samples 1 .. steps - 1 of each step, as flat offsets
+    count = steps - 1
+    first = np.cumsum(count) - count
+    owner = np.repeat(np.arange(len(unique)), count)
+    k = np.arange(len(owner)) - first[owner] + 1
+    fraction = k / steps[owner]
+    table = (np.rint(step[:, 0][owner] * fraction) * float(strides[0]) + np.rint(step[:, 1][owner] * fraction) * float(strides[1])
+             + np.rint(step[:, 2][owner] * fraction) * float(strides[2])).astype(np.int64)  # exact: integers below 2**53
+    # the samples along a segment move monotonically on each axis, so a lattice point's samples
+    # are consecutive: keep the first of each run, and drop the ends
+    previous = np.empty_like(table)
+    previous[1:] = table[:-1]
+    previous[first[count > 0]] = 0
+    new = (table != previous) & (table != 0) & (table != (unique @ strides)[owner])
+    table = table[new]
+    count = np.bincount(owner[new], minlength=len(unique))
+    first = np.cumsum(count) - count
+    # every segment's lattice points: its start plus its step's offsets
+    count = count[which]
+    tested = np.flatnonzero(count)
+    if len(tested) == 0:
+        return gap
+    segment_start = np.cumsum(count) - count
+    position = np.repeat(first[which] - segment_start, count) + np.arange(int(segment_start[-1] + count[-1]))
+    inside = hull.ravel()[np.repeat(start, count) + table[position]]
+    gap[tested] = ~np.logical_and.reduceat(inside, segment_start[tested])
     return gap
 
 
@@ -184,30 +310,92 @@ def _rivals(axis_uv: np.ndarray, reach_px: np.ndarray, axis_points: np.ndarray, 
             hull: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One view's rivals: the pairs (axis point index, piece) such that a hull point of that other
     piece projects within the axis point's reach (closed) and is separated from it by a gap in the
-    hull. Each pair once. (Per pair, the farthest such hull point is tried first, the lowest index
-    of equally far ones: it is the one most likely across a gap; the others only when it is not.)
-    ``axis_points`` and ``tube_points`` are (n, 3) integer lattice indices into the volume
-    ``hull``."""
-    pairs = cKDTree(axis_uv).sparse_distance_matrix(cKDTree(tube_uv), float(reach_px.max()), output_type="ndarray")
-    axis_index, tube_index = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
+    hull. Each pair once, in the order of (axis point index, piece). (Per pair, the farthest such
+    hull point is tried first, the lowest index of equally far ones: it is the one most likely
+    across a gap; the others only when it is not.) ``axis_points`` and ``tube_points`` are (n, 3)
+    integer lattice indices into the volume ``hull``."""
+    axis_index, tube_index = _pairs_within(axis_uv, reach_px, axis_piece, tube_uv, tube_piece)
     rival_piece = tube_piece[tube_index]
-    keep = (rival_piece != axis_piece[axis_index]) & (pairs["v"] <= reach_px[axis_index])
-    axis_index, tube_index, rival_piece = axis_index[keep], tube_index[keep], rival_piece[keep]
     if len(axis_index) == 0:
         return axis_index, rival_piece
-    offset = (tube_points[tube_index] - axis_points[axis_index]).astype(np.float64)
-    distance = (offset * offset).sum(axis=1)  # squared, in lattice spacings
-    order = np.lexsort((tube_index, -distance, rival_piece, axis_index))
-    axis_index, tube_index, rival_piece = axis_index[order], tube_index[order], rival_piece[order]
+    axis_xyz, tube_xyz = np.ascontiguousarray(axis_points.T), np.ascontiguousarray(tube_points.T)
+    offset = [t[tube_index] - a[axis_index] for a, t in zip(axis_xyz, tube_xyz)]
+    distance = offset[0] * offset[0] + offset[1] * offset[1] + offset[2] * offset[2]  # squared, in lattice spacings
+    axis_index, rival_piece, tube_index = _sorted_pairs(axis_index, rival_piece, distance, tube_index,
+                                                        len(axis_points), int(tube_piece.max()) + 1, len(tube_points))
     group_start = np.r_[True, (np.diff(axis_index) != 0) | (np.diff(rival_piece) != 0)]
     group = np.cumsum(group_start) - 1
     first = np.flatnonzero(group_start)
-    apart = _leaves_hull(axis_points[axis_index[first]], tube_points[tube_index[first]], hull)
+    axis_flat = axis_points @ (np.array(hull.strides, dtype=np.int64) // hull.itemsize)
+
+    def gaps(pairs: np.ndarray) -> np.ndarray:
+        a, t = axis_index[pairs], tube_index[pairs]
+        return _gaps(axis_flat[a], *(tc[t] - ac[a] for ac, tc in zip(axis_xyz, tube_xyz)), hull)
+
+    apart = gaps(first)
     rest = np.flatnonzero(~group_start & ~apart[group])
     if len(rest):
-        rest_apart = _leaves_hull(axis_points[axis_index[rest]], tube_points[tube_index[rest]], hull)
-        apart[group[rest[rest_apart]]] = True
+        apart[group[rest[gaps(rest)]]] = True
     return axis_index[first[apart]], rival_piece[first[apart]]
+
+
+def _pairs_within(axis_uv: np.ndarray, reach_px: np.ndarray, axis_piece: np.ndarray, tube_uv: np.ndarray,
+                  tube_piece: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(axis index, tube index) of the pairs of an axis point and a tube point of another piece whose
+    projections lie within the axis point's reach (closed), ordered by axis index: the pairs that
+    ``cKDTree(axis_uv).sparse_distance_matrix(cKDTree(tube_uv), reach_px.max())`` returns, kept where
+    the pieces differ and the distance it computes is within ``reach_px``.
+
+    The tube points are binned on a grid of cells of half the largest reach (a hair more, so that
+    rounding cannot move a point within reach beyond the cells searched); each axis point reads the
+    cells of the rows within reach, and the distances are computed as the tree does (the squared
+    differences summed, compared with the largest reach squared, then the square root)."""
+    largest = float(reach_px.max())
+    split = 2
+    cell = largest / split * (1.0 + 1e-6)
+    low = np.array([min(axis_uv[:, 0].min(), tube_uv[:, 0].min()), min(axis_uv[:, 1].min(), tube_uv[:, 1].min())])
+    tube_cell = np.floor((tube_uv - low) / cell).astype(np.int64) + split
+    axis_cell = np.floor((axis_uv - low) / cell).astype(np.int64) + split
+    width = int(max(tube_cell[:, 1].max(), axis_cell[:, 1].max())) + split + 1
+    tube_key = tube_cell[:, 0] * width + tube_cell[:, 1]
+    by_key = np.argsort(tube_key)
+    sorted_key = tube_key[by_key]
+    # rows of cells -split..split; the columns of a row that a point within reach can lie in
+    rows = np.arange(-split, split + 1)
+    columns = np.minimum(split, 1 + np.floor(np.sqrt(split * split - np.maximum(np.abs(rows) - 1, 0) ** 2)).astype(np.int64))
+    centre = (axis_cell[:, 0] * width + axis_cell[:, 1])[:, None] + rows[None, :] * width
+    first = np.searchsorted(sorted_key, (centre - columns[None, :]).ravel(), side="left")
+    count = np.searchsorted(sorted_key, (centre + columns[None, :] + 1).ravel(), side="left") - first
+    start = np.cumsum(count) - count
+    position = np.repeat(first - start, count) + np.arange(int(count.sum()))  # in the sorted tube points
+    per_axis = count.reshape(len(axis_uv), -1).sum(axis=1)
+    other = np.flatnonzero(tube_piece[by_key][position] != np.repeat(axis_piece, per_axis))
+    axis_index, position = np.repeat(np.arange(len(axis_uv)), per_axis)[other], position[other]
+    du = axis_uv[:, 0][axis_index] - tube_uv[by_key, 0][position]
+    dv = axis_uv[:, 1][axis_index] - tube_uv[by_key, 1][position]
+    squared = du * du
+    squared += dv * dv
+    near = np.flatnonzero(squared <= largest * largest)
+    axis_index, position = axis_index[near], position[near]
+    near = np.sqrt(squared[near]) <= reach_px[axis_index]
+    return axis_index[near], by_key[position[near]]
+
+
+def _sorted_pairs(axis_index: np.ndarray, rival_piece: np.ndarray, distance: np.ndarray, tube_index: np.ndarray,
+                  n_axis: int, n_pieces: int, n_tube: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(axis_index, rival_piece, tube_index) ordered by axis index, piece, decreasing distance
+    (non-negative integers) and tube index. The four keys are packed into one integer where they
+    fit (one sort of plain integers instead of a four-key lexsort; the pairs are distinct, so is the
+    packed key)."""
+    n_distance = int(distance.max()) + 1
+    if n_axis * n_pieces * n_distance * n_tube < 2 ** 63:
+        key = ((axis_index.astype(np.int64) * n_pieces + rival_piece) * n_distance + (n_distance - 1 - distance)) * n_tube
+        key = np.sort(key + tube_index)
+        tube_index = key % n_tube
+        key //= n_tube * n_distance
+        return key // n_pieces, key % n_pieces, tube_index
+    order = np.lexsort((tube_index, -distance, rival_piece, axis_index))
+    return axis_index[order].astype(np.int64), rival_piece[order], tube_index[order]
 
 
 def drop_explained_pieces(axis_piece: np.ndarray, rivals: Sequence[tuple[np.ndarray, np.ndarray]],
@@ -301,15 +489,25 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
         info["radius_removed"] = int(big.sum())
         return points_mm[:0], info
     # radius consistency: keep hull points within the radius of their nearest (kept) axis point
-    _, in_tube = _radius_tube(ordered[big], radius, axis, settings.slack_cells * lattice.spacing_mm, nearest)
+    candidates = ordered[big]
+    _, in_tube = _radius_tube(candidates, _lattice_indices(candidates, lattice), radius, axis,
+                              settings.slack_cells * lattice.spacing_mm, nearest)
     keep[order[np.flatnonzero(big)[in_tube]]] = True
     info["radius_removed"] = int((~in_tube).sum())
     return points_mm[keep], info
 
 
+def _lattice_indices(points_mm: np.ndarray, lattice: Lattice) -> np.ndarray:
+    """(N, 3) int: the (i, j, k) lattice indices of lattice points."""
+    return np.round((points_mm + lattice.half_edge_mm) / lattice.spacing_mm).astype(np.int64)
+
+
 def _lattice_order(points_mm: np.ndarray, lattice: Lattice) -> np.ndarray:
     """The permutation that sorts lattice points by their (i, j, k) lattice indices."""
-    ijk = np.round((points_mm + lattice.half_edge_mm) / lattice.spacing_mm).astype(np.int64)
+    ijk = _lattice_indices(points_mm, lattice)
+    k = lattice.resolution
+    if len(ijk) and ijk.min() >= 0 and ijk.max() < k:  # one key, sorted stably: the order of the lexsort below
+        return np.argsort((ijk[:, 0] * k + ijk[:, 1]) * k + ijk[:, 2], kind="stable")
     return np.lexsort((ijk[:, 2], ijk[:, 1], ijk[:, 0]))
 
 
@@ -346,23 +544,120 @@ def _box(mask: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[tuple[in
     return start, stop
 
 
+def _inside_distance(mask: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """``scipy.ndimage.distance_transform_edt(mask)`` at the pixels ``where`` (a subset of the
+    vessel pixels of the bool image ``mask``; 0 elsewhere): the distance from each to the nearest
+    background pixel centre of the image.
+
+    The nearest background pixel b of a vessel pixel f has a vessel 8-neighbour (the step from b
+    toward f is nearer to f, so it is not background): a k-d tree of the background pixels next to
+    the vessel finds it, and gives the same distance (the square root of the summed squares of
+    integers). An image without background goes to the distance transform."""
+    out = np.zeros(mask.shape)
+    padded = np.zeros((mask.shape[0] + 2, mask.shape[1] + 2), dtype=bool)
+    padded[1:-1, 1:-1] = mask
+    near_vessel = np.zeros(mask.shape, dtype=bool)
+    for dr in range(3):
+        for dc in range(3):
+            if dr != 1 or dc != 1:
+                near_vessel |= padded[dr:dr + mask.shape[0], dc:dc + mask.shape[1]]
+    edge = np.argwhere(near_vessel & ~mask)
+    if len(edge) == 0:
+        return np.where(where, ndi.distance_transform_edt(mask), 0.0)
+    query = np.argwhere(where)
+    if len(query):
+        out[where] = cKDTree(edge.astype(np.float64)).query(query.astype(np.float64), k=1)[0]
+    return out
+
+
 _TIE_MM = 1e-9
 """Points whose distances differ by less than this are equally near (lattice points often are)."""
 
 
-def _radius_tube(candidates: np.ndarray, radius: np.ndarray, axis: np.ndarray, slack_mm: float,
-                 nearest: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(nearest axis point, within its radius + slack) of every candidate. ``nearest``: (distance,
-    position in ``axis``) of the candidates' nearest axis points where already known (position -1
-    where not), e.g. from a query of more axis points whose nearest is among these."""
+def _lattice_shells(cells: int) -> dict[int, np.ndarray]:
+    """The lattice offsets (n, 3) of each squared length up to ``cells ** 2`` that has any."""
+    r = np.arange(-cells, cells + 1)
+    offsets = np.stack(np.meshgrid(r, r, r, indexing="ij"), axis=-1).reshape(-1, 3)
+    length = (offsets * offsets).sum(axis=1)
+    return {n: offsets[length == n] for n in range(cells * cells + 1) if (length == n).any()}
+
+
+_SHELLS = _lattice_shells(8)
+
+
+def _nearest_axis(axis_ijk: np.ndarray, axis_mm: np.ndarray, query_ijk: np.ndarray, query_mm: np.ndarray,
+                  reach_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """``nearest_with_ties(axis_mm, query_mm, _TIE_MM)`` for lattice points (``*_ijk``: their
+    (n, 3) lattice indices, ``axis_ijk`` in lattice order) with an axis point nearer than
+    ``reach_mm``: the distance (mm) to the nearest axis point and the index of the nearest, the
+    lowest of equally near ones. The other queries get distance inf and index 0.
+
+    The squared distance between two lattice points is an integer number of squared spacings;
+    distances of different integers differ by far more than the tie tolerance (at least
+    spacing / (2 sqrt(n)), about a micrometre at K = 1024), those of the same integer by rounding
+    only. So a k-d tree gives the distance and one nearest axis point (the distance is the smallest
+    the tree computes, whichever of the equally near points it found), and the equally near ones
+    are the axis points on the shell of lattice offsets of the same squared length around the
+    query, read from a volume (up to 8 spacings away; :func:`nearest_with_ties` beyond)."""
+    distance, index = cKDTree(axis_mm).query(query_mm, k=1, distance_upper_bound=reach_mm)
+    found = np.flatnonzero(index < len(axis_mm))
+    index[index >= len(axis_mm)] = 0
+    if len(found) == 0:
+        return distance, index
+    cells = max(int(np.sqrt(n)) for n in _SHELLS)
+    query_ijk = query_ijk[found]
+    low = np.minimum(_column_min(axis_ijk), _column_min(query_ijk)) - cells
+    shape = np.maximum(_column_max(axis_ijk), _column_max(query_ijk)) - low + cells + 1
+    strides = np.array([shape[1] * shape[2], shape[2], 1], dtype=np.int64)
+    axis_flat = _flat_index(axis_ijk - low, strides)  # increasing: the axis points are in lattice order
+    occupied = np.zeros(int(np.prod(shape)), dtype=bool)
+    occupied[axis_flat] = True
+    offset = query_ijk - axis_ijk[index[found]]
+    length = offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1] + offset[:, 2] * offset[:, 2]  # squared lattice distance
+    query_flat = _flat_index(query_ijk - low, strides)
+    by_length = np.argsort(length, kind="stable")
+    bounds = np.searchsorted(length[by_length], np.arange(cells * cells + 2))
+    for n, shell in _SHELLS.items():
+        which = by_length[bounds[n]:bounds[n + 1]]
+        if len(which) == 0 or len(shell) == 1:
+            continue
+        flat = query_flat[which][:, None] + (shell @ strides)[None, :]
+        hit = occupied[flat]
+        tied = np.flatnonzero(hit.sum(axis=1) > 1)
+        if len(tied):  # the lowest index of the equally near axis points
+            flat = np.where(hit[tied], flat[tied], np.iinfo(np.int64).max)
+            index[found[which[tied]]] = np.searchsorted(axis_flat, flat.min(axis=1))
+    far = found[length > cells * cells]
+    if len(far):
+        distance[far], index[far] = nearest_with_ties(axis_mm, query_mm[far], _TIE_MM)
+    return distance, index
+
+
+def _radius_tube(candidates: np.ndarray, candidates_ijk: np.ndarray, radius: np.ndarray, axis: np.ndarray,
+                 slack_mm: float, nearest: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(nearest axis point, within its radius + slack) of every candidate (``candidates_ijk``: their
+    lattice indices). ``nearest``: (distance, position in ``axis``) of the candidates' nearest axis
+    points where already known (position -1 where not), e.g. from a query of more axis points whose
+    nearest is among these. The nearest axis point is looked for within the largest radius + slack
+    only (farther candidates are outside the tube whichever it is): beyond, distance inf and
+    position 0."""
     if nearest is None:
-        distance, owner = nearest_with_ties(candidates[axis], candidates, _TIE_MM)
+        distance, owner = _nearest_axis(candidates_ijk[axis], candidates[axis], candidates_ijk, candidates,
+                                        _tube_reach(radius[axis], slack_mm))
     else:
         distance, owner = nearest[0].copy(), nearest[1].copy()
         unknown = np.flatnonzero(owner < 0)
         if len(unknown):
-            distance[unknown], owner[unknown] = nearest_with_ties(candidates[axis], candidates[unknown], _TIE_MM)
+            distance[unknown], owner[unknown] = _nearest_axis(candidates_ijk[axis], candidates[axis],
+                                                              candidates_ijk[unknown], candidates[unknown],
+                                                              _tube_reach(radius[axis], slack_mm))
     return owner, distance <= radius[axis][owner] + slack_mm
+
+
+def _tube_reach(radius: np.ndarray, slack_mm: float) -> float:
+    """A distance (mm) beyond every tube: the largest radius plus the slack, plus a millimetre
+    against rounding (the k-d tree's bound is strict)."""
+    return float(radius.max()) + slack_mm + 1.0
 
 
 def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Projection],
@@ -374,16 +669,15 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
     point); ``nearest`` is what is known of each candidate's nearest kept axis point (see
     :func:`_radius_tube`), or None. Fills the counts of ``info``."""
     h = lattice.spacing_mm
-    ijk = np.round((points_mm + lattice.half_edge_mm) / h).astype(np.int64)
-    low = ijk.min(axis=0) - 2
+    ijk = _lattice_indices(points_mm, lattice)
+    low = _column_min(ijk) - 2
     local = ijk - low
-    volume = np.zeros(tuple(local.max(axis=0) + 3), dtype=bool)
+    volume = np.zeros(tuple(_column_max(local) + 3), dtype=bool)
     volume[tuple(local.T)] = True
 
     # 2. connectivity
     bridged = dilated(volume, settings.bridge_cells) if settings.bridge_cells else volume
-    labels, _ = ndi.label(bridged, structure=_TWENTY_SIX)
-    point_labels = labels[tuple(local.T)]
+    point_labels = _point_components(bridged, local)
     sizes = np.bincount(point_labels)
     big = sizes[point_labels] >= settings.component_fraction * len(points_mm)
     info["components_removed"] = int((~big).sum())
@@ -398,8 +692,11 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
         # distance transforms do not depend on how the image was stored (flipped, transposed)
         storage = canonical_storage(projection)
         projection, mask = storage.apply(projection), storage.apply_image(np.asarray(mask, dtype=bool))
-        uv = projection.project(candidates)
-        px_per_mm = max(projection.focal_lengths_px) / projection.depth_mm(candidates)
+        # Projection.project and .depth_mm from one product
+        homogeneous = projection.homogeneous(candidates)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = homogeneous[:, :2] / homogeneous[:, 2:3]
+        px_per_mm = max(projection.focal_lengths_px) / (homogeneous[:, 2] / np.linalg.norm(projection.matrix[2, :3]))
         cols = np.clip(np.floor(uv[:, 0] + 0.5).astype(np.int64), 0, mask.shape[1] - 1)
         rows = np.clip(np.floor(uv[:, 1] + 0.5).astype(np.int64), 0, mask.shape[0] - 1)
         # the image maps below are computed on the box around the mask and the candidates' pixels,
@@ -409,8 +706,8 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
         (r0, c0), (r1, c1) = _box(mask, rows, cols)
         crop = mask[r0:r1, c0:c1]
         local_rows, local_cols = rows - r0, cols - c0
-        inside = ndi.distance_transform_edt(crop)
         centreline = thin(crop)
+        inside = _inside_distance(crop, centreline)
         off_centre, nearest = ndi.distance_transform_edt(~centreline, return_indices=True)
         reach_px = 0.5 * np.sqrt(3.0) * h * px_per_mm + 0.5
         on_axis_views += off_centre[local_rows, local_cols] <= reach_px
@@ -427,10 +724,12 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
     nearest = None
     # 4. explanation: drop axis pieces whose pixels other pieces explain in every view
     if settings.unique_fraction > 0:
-        distance, owner = nearest_with_ties(candidates[axis], candidates, _TIE_MM)
-        owner, in_tube = _radius_tube(candidates, radius, axis, settings.slack_cells * h, (distance, owner))
-        piece = _axis_pieces(local[big][axis], volume.shape,
-                             [centreline_branches(c)[r[axis], k[axis]] for _, _, c, r, k in views])
+        candidate_ijk = ijk[big]
+        distance, owner = _nearest_axis(candidate_ijk[axis], candidates[axis], candidate_ijk, candidates,
+                                        _tube_reach(radius[axis], settings.slack_cells * h))
+        owner, in_tube = _radius_tube(candidates, candidate_ijk, radius, axis, settings.slack_cells * h,
+                                      (distance, owner))
+        piece = _axis_pieces(local[big][axis], [centreline_branches(c)[r[axis], k[axis]] for _, _, c, r, k in views])
         tube = np.flatnonzero(in_tube)
         tube_piece = piece[owner[tube]]
         hull = np.zeros_like(volume)
