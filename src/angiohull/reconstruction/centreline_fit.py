@@ -294,12 +294,45 @@ def fit_view_shift(centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarr
 
     offsets = np.arange(-reach_px, reach_px + 1, dtype=float)
     grid = [start + (du, dv) for du in offsets for dv in offsets]
-    for step in (0.5, 0.25, 0.1, 0.05, None):
-        costs = [_cost(centre_line, uv_px, weights, g, cutoff_px) for g in grid]
+    steps = (0.5, 0.25, 0.1, 0.05)
+    known: dict[bytes, float] = {}  # every grid but the first repeats its centre
+    for index, step in enumerate(steps + (None,)):
+        # every shift tried from here on lies within this reach (per axis) of the grid's centre
+        reach = (reach_px if index == 0 else steps[index - 1]) + sum(steps[index:])
+        cost = _ShiftCost(centre_line, uv_px, weights, grid[len(grid) // 2], reach * np.sqrt(2.0), cutoff_px)
+        costs = []
+        for g in grid:
+            key = g.tobytes()
+            if key not in known:
+                known[key] = cost(g)
+            costs.append(known[key])
         best = grid[int(np.argmin(costs))]
         if step is None:
             return best, min(costs)
         grid = [best + (du * step, dv * step) for du in (-1, 0, 1) for dv in (-1, 0, 1)]
+
+
+class _ShiftCost:
+    """:func:`_cost` for shifts within ``reach_px`` of ``centre_px``, the same to the last bit but
+    quicker: the points farther than the cutoff plus the reach from the centreline at the centre
+    stay farther than the cutoff at every such shift, so only the others are measured again."""
+
+    def __init__(self, centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarray, centre_px, reach_px: float,
+                 cutoff_px: float):
+        self.centre_line, self.uv_px, self.weights, self.cutoff_px = centre_line, uv_px, weights, cutoff_px
+        self.total = np.sum(weights)
+        at = uv_px + np.asarray(centre_px, dtype=float)
+        finite = np.all(np.isfinite(at), axis=1)
+        found = np.full(len(at), np.inf)
+        # the margin covers the rounding of the shifted coordinates
+        found[finite], _ = centre_line.tree.query(at[finite], distance_upper_bound=cutoff_px + reach_px + 1e-6)
+        self.near = np.flatnonzero(np.isfinite(found))
+        self.distance = np.full(len(uv_px), float(cutoff_px))
+
+    def __call__(self, shift_px) -> float:
+        distance = self.distance.copy()
+        distance[self.near] = self.centre_line.distances(self.uv_px[self.near] + np.asarray(shift_px), self.cutoff_px)
+        return float(np.sum(self.weights * distance ** 2) / self.total)
 
 
 def _view_direction(projection: Projection) -> np.ndarray:
@@ -328,20 +361,25 @@ def _triangulated_for(pairs: Sequence[tuple[int, int]], projections: Sequence[Pr
                       centre_lines: Sequence[Centreline], shifts_px: np.ndarray,
                       matched: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The points triangulated from ``pairs`` of views (those that fit a view: :func:`_pairs_for`;
-    weights: every pair counts the same). ``matched`` caches :func:`match_pair` for one set of shifts."""
+    weights: every pair counts the same). ``matched`` caches :func:`match_pair` and the views' rays,
+    by the views' matrices and shifts: a search that moves some views reuses the pairs of the others."""
     matched = {} if matched is None else matched
+    if len(matched) > _MATCHED_ENTRIES:
+        matched.clear()
     parts = []
     for i, j in pairs:
-        if (i, j) not in matched:
+        keys = {k: (k, projections[k].matrix.tobytes(), np.asarray(shifts_px[k], dtype=float).tobytes()) for k in (i, j)}
+        pair_key = (keys[i], keys[j])
+        if pair_key not in matched:
             views = {}
             for k in (i, j):  # a view's rays serve every pair it is in
-                if ("view", k) not in matched:
+                if keys[k] not in matched:
                     shifted = projections[k].shifted(*shifts_px[k])
-                    matched["view", k] = (shifted, centreline_rays(shifted, centre_lines[k]))
-                views[k] = matched["view", k]
-            matched[i, j] = match_pair(views[i][0], views[j][0], centre_lines[i], centre_lines[j],
-                                       rays_i=views[i][1], rays_j=views[j][1])
-        parts.append(matched[i, j])
+                    matched[keys[k]] = (shifted, centreline_rays(shifted, centre_lines[k]))
+                views[k] = matched[keys[k]]
+            matched[pair_key] = match_pair(views[i][0], views[j][0], centre_lines[i], centre_lines[j],
+                                           rays_i=views[i][1], rays_j=views[j][1])
+        parts.append(matched[pair_key])
     parts = [(x, w / w.sum()) for x, w in parts if len(x)]
     if not parts:
         return np.zeros((0, 3)), np.zeros(0)
@@ -381,9 +419,13 @@ def consistency_cost(projections: Sequence[Projection], centre_lines: Sequence[C
     return _summed_cost(projections, centre_lines, np.asarray(shifts_px, dtype=float), pair_lists, cutoff_px)
 
 
-def _summed_cost(projections, centre_lines, shifts: np.ndarray, pair_lists, cutoff_px: float) -> float:
+_MATCHED_ENTRIES = 96  # a cache of _triangulated_for beyond this many entries starts afresh
+
+
+def _summed_cost(projections, centre_lines, shifts: np.ndarray, pair_lists, cutoff_px: float,
+                 matched: dict | None = None) -> float:
     total = 0.0
-    matched: dict = {}  # a pair of views serves several views' fits
+    matched = {} if matched is None else matched  # a pair of views serves several views' fits
     for v, projection in enumerate(projections):
         points, weights = _triangulated_for(pair_lists[v], projections, centre_lines, shifts, matched)
         if len(points) == 0 or centre_lines[v].tree is None:
@@ -454,9 +496,10 @@ def fit_jointly(projections: Sequence[Projection], centre_lines: Sequence[Centre
     basis = np.zeros((len(local), 2 * n))
     basis[:, columns] = local
     pair_lists = [_pairs_for(v, projections) for v in range(n)]
+    matched: dict = {}  # a trial step moves some views only: the pairs of the others are reused
 
     def cost(x: np.ndarray) -> float:
-        return _summed_cost(projections, centre_lines, x.reshape(-1, 2), pair_lists, cutoff_px)
+        return _summed_cost(projections, centre_lines, x.reshape(-1, 2), pair_lists, cutoff_px, matched)
 
     offsets = [(du, dv) for du in range(-reach_px, reach_px + 1) for dv in range(-reach_px, reach_px + 1)]
     for v in free if reach_px > 0 else ():  # the best integer offset, one view after another
@@ -490,6 +533,7 @@ def fit_scales_jointly(projections: Sequence[Projection], centre_lines: Sequence
     scales = np.asarray(scales, dtype=float)
     start = np.asarray(shifts_px, dtype=float).ravel()
     pair_lists = [_pairs_for(v, projections) for v in range(n)]
+    matched: dict = {}  # as in fit_jointly
     pivots = []  # (view, centroid (2,) - principal point (2,), RMS radius px)
     for v in views:
         uv = centre_lines[v].uv_px
@@ -508,7 +552,7 @@ def fit_scales_jointly(projections: Sequence[Projection], centre_lines: Sequence
     def cost(x: np.ndarray) -> float:
         trial_scales, trial_shifts = unpack(x)
         return _summed_cost([p.magnified(f) for p, f in zip(projections, trial_scales)], centre_lines, trial_shifts,
-                            pair_lists, cutoff_px)
+                            pair_lists, cutoff_px, matched)
 
     basis = _off_gauge_basis(gauge_directions, 2 * n)
     directions = np.zeros((len(basis) + len(pivots), 2 * n + len(pivots)))
