@@ -82,7 +82,14 @@ class Centreline:
         self.uv_px = pixels + _centring_offsets(mask, skeleton, pixels, self.half_width_px)
         self.tree = cKDTree(self.uv_px) if len(self.uv_px) else None
         self.distance_floor_px, self._candidate_row, self._candidates = _distance_floor(self.tree, mask.shape)
-        self._candidate_uv = (np.append(self.uv_px[:, 0], np.inf), np.append(self.uv_px[:, 1], np.inf))  # + padding
+        if self._candidates is not None:
+            # the candidates' coordinates, padded with inf: the first _NARROW of each pixel, and all of
+            # them for the few pixels that have more (most have about five)
+            padded_u, padded_v = np.append(self.uv_px[:, 0], np.inf), np.append(self.uv_px[:, 1], np.inf)
+            self._wide_u, self._wide_v = padded_u[self._candidates], padded_v[self._candidates]
+            self._narrow_u = np.ascontiguousarray(self._wide_u[:, :_NARROW])
+            self._narrow_v = np.ascontiguousarray(self._wide_v[:, :_NARROW])
+            self._overflows = np.isfinite(self._wide_u[:, _NARROW:]).any(axis=1)
 
     def distances(self, uv_px: np.ndarray, cutoff_px: float) -> np.ndarray:
         """Distance from each point to the nearest centreline point, ``cutoff_px`` where it is
@@ -106,16 +113,22 @@ class Centreline:
         near = self.distance_floor_px[on_rows, on_cols] <= cutoff_px
         if near.any():
             index = on[near]
-            candidates = self._candidates[self._candidate_row[on_rows[near], on_cols[near]]]  # (M, C)
-            du = uv_px[index, 0][:, None] - self._candidate_uv[0][candidates]
-            dv = uv_px[index, 1][:, None] - self._candidate_uv[1][candidates]
-            distance[index] = np.minimum(np.sqrt(du * du + dv * dv).min(axis=1), cutoff_px)
+            rows = self._candidate_row[on_rows[near], on_cols[near]]
+            u, v = uv_px[index, 0][:, None], uv_px[index, 1][:, None]
+            du, dv = u - self._narrow_u[rows], v - self._narrow_v[rows]
+            nearest = np.sqrt(du * du + dv * dv).min(axis=1)
+            wide = np.flatnonzero(self._overflows[rows])
+            if len(wide):  # the same minimum over all of these pixels' candidates
+                du, dv = u[wide] - self._wide_u[rows[wide]], v[wide] - self._wide_v[rows[wide]]
+                nearest[wide] = np.sqrt(du * du + dv * dv).min(axis=1)
+            distance[index] = np.minimum(nearest, cutoff_px)
         if ask.any():
             found, _ = self.tree.query(uv_px[ask], distance_upper_bound=cutoff_px)
             distance[ask] = np.minimum(found, cutoff_px)  # misses come back as inf
         return distance
 
 
+_NARROW = 6  # Centreline.distances reads this many candidates of a pixel first (the rest where it has more)
 _FLOOR_REACH_PX = 4.0  # Centreline.distance_floor_px is measured out to this distance from the centreline
 _ROUNDING_PX = 1e-9  # the floor is lowered and the candidates' radius raised by this: exact despite rounding
 
@@ -134,19 +147,30 @@ def _distance_floor(tree: cKDTree | None, shape: tuple[int, int]):
     floor = np.full(shape, np.inf, dtype=np.float32)  # single precision, rounded down below: still a floor
     low = np.maximum(np.floor(tree.mins - _FLOOR_REACH_PX).astype(np.int64), 0)  # (u, v)
     high = np.minimum(np.ceil(tree.maxes + _FLOOR_REACH_PX).astype(np.int64) + 1, (shape[1], shape[0]))
-    v, u = np.mgrid[low[1]:high[1], low[0]:high[0]]
-    centres = np.column_stack([u.ravel(), v.ravel()]).astype(float)
+    # only the pixels within the reach of a point's nearest pixel (plus half a diagonal) are asked
+    box = np.zeros((high[1] - low[1], high[0] - low[0]), dtype=bool)
+    nearest = np.clip(np.floor(tree.data + 0.5).astype(np.int64) - low, 0, np.array(box.shape[::-1]) - 1)
+    box[nearest[:, 1], nearest[:, 0]] = True
+    r = int(np.ceil(_FLOOR_REACH_PX + np.sqrt(0.5)))
+    dy, dx = np.mgrid[-r:r + 1, -r:r + 1]
+    near = np.zeros_like(box)
+    for oy, ox in zip(dy[dx * dx + dy * dy <= r * r], dx[dx * dx + dy * dy <= r * r]):
+        near[max(oy, 0):box.shape[0] + min(oy, 0), max(ox, 0):box.shape[1] + min(ox, 0)] |= \
+            box[max(-oy, 0):box.shape[0] + min(-oy, 0), max(-ox, 0):box.shape[1] + min(-ox, 0)]
+    v, u = np.nonzero(near)
+    v, u = v + low[1], u + low[0]
+    centres = np.column_stack([u, v]).astype(float)
     found, _ = tree.query(centres, distance_upper_bound=_FLOOR_REACH_PX)
     band = np.isfinite(found)
     below = (found[band] - np.sqrt(0.5) - _ROUNDING_PX).astype(np.float32)
-    floor[v.ravel()[band], u.ravel()[band]] = np.nextafter(below, np.float32(-np.inf))
+    floor[v[band], u[band]] = np.nextafter(below, np.float32(-np.inf))
     lists = tree.query_ball_point(centres[band], found[band] + np.sqrt(2.0) + _ROUNDING_PX)
     counts = np.fromiter((len(c) for c in lists), dtype=np.int64, count=len(lists))
     candidates = np.full((len(lists), int(counts.max(initial=1))), tree.n, dtype=np.int32)
     candidates[np.arange(len(lists)).repeat(counts), _ranks(counts)] = np.concatenate(
         [np.asarray(c, dtype=np.int32) for c in lists]) if len(lists) else np.zeros(0, np.int32)
     candidate_row = np.zeros(shape, dtype=np.int32)
-    candidate_row[v.ravel()[band], u.ravel()[band]] = np.arange(len(lists))
+    candidate_row[v[band], u[band]] = np.arange(len(lists))
     return floor, candidate_row, candidates
 
 
@@ -160,11 +184,19 @@ def _skeleton_normals(skeleton: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     minor axis of the scatter of skeleton pixels within NORMAL_RADIUS_PX."""
     r = NORMAL_RADIUS_PX
     dy, dx = np.mgrid[-r:r + 1, -r:r + 1].astype(float)
-    disc = (dx ** 2 + dy ** 2 <= r * r).astype(float)
-    image = skeleton.astype(float)
+    inside = dx ** 2 + dy ** 2 <= r * r
     rows, cols = pixels[:, 1].astype(int), pixels[:, 0].astype(int)
-    moments = {key: ndi.correlate(image, disc * kernel, mode="constant")[rows, cols]
-               for key, kernel in (("n", 1.0), ("x", dx), ("y", dy), ("xx", dx * dx), ("xy", dx * dy), ("yy", dy * dy))}
+    # the skeleton's moments in the disc around each of its pixels (whole numbers: exact in any order)
+    padded = np.pad(skeleton.astype(bool), r)
+    moments = {key: np.zeros(len(pixels)) for key in ("n", "x", "y", "xx", "xy", "yy")}
+    for ox, oy in zip(dx[inside], dy[inside]):
+        hit = padded[rows + r + int(oy), cols + r + int(ox)]
+        moments["n"] += hit
+        moments["x"] += hit * ox
+        moments["y"] += hit * oy
+        moments["xx"] += hit * (ox * ox)
+        moments["xy"] += hit * (ox * oy)
+        moments["yy"] += hit * (oy * oy)
     n = moments["n"]
     cxx = moments["xx"] / n - (moments["x"] / n) ** 2
     cyy = moments["yy"] / n - (moments["y"] / n) ** 2
@@ -294,18 +326,12 @@ def fit_view_shift(centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarr
 
     offsets = np.arange(-reach_px, reach_px + 1, dtype=float)
     grid = [start + (du, dv) for du in offsets for dv in offsets]
-    steps = (0.5, 0.25, 0.1, 0.05)
+    cost = _ShiftCost(centre_line, uv_px, weights, cutoff_px)
     known: dict[bytes, float] = {}  # every grid but the first repeats its centre
-    for index, step in enumerate(steps + (None,)):
-        # every shift tried from here on lies within this reach (per axis) of the grid's centre
-        reach = (reach_px if index == 0 else steps[index - 1]) + sum(steps[index:])
-        cost = _ShiftCost(centre_line, uv_px, weights, grid[len(grid) // 2], reach * np.sqrt(2.0), cutoff_px)
-        costs = []
-        for g in grid:
-            key = g.tobytes()
-            if key not in known:
-                known[key] = cost(g)
-            costs.append(known[key])
+    for step in (0.5, 0.25, 0.1, 0.05, None):
+        new = [g for g in grid if g.tobytes() not in known]
+        known.update(zip([g.tobytes() for g in new], cost(new)))
+        costs = [known[g.tobytes()] for g in grid]
         best = grid[int(np.argmin(costs))]
         if step is None:
             return best, min(costs)
@@ -313,26 +339,19 @@ def fit_view_shift(centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarr
 
 
 class _ShiftCost:
-    """:func:`_cost` for shifts within ``reach_px`` of ``centre_px``, the same to the last bit but
-    quicker: the points farther than the cutoff plus the reach from the centreline at the centre
-    stay farther than the cutoff at every such shift, so only the others are measured again."""
+    """:func:`_cost` at the shifts of one grid in one call of :meth:`Centreline.distances`; the
+    same values to the last bit."""
 
-    def __init__(self, centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarray, centre_px, reach_px: float,
-                 cutoff_px: float):
+    def __init__(self, centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarray, cutoff_px: float):
         self.centre_line, self.uv_px, self.weights, self.cutoff_px = centre_line, uv_px, weights, cutoff_px
         self.total = np.sum(weights)
-        at = uv_px + np.asarray(centre_px, dtype=float)
-        finite = np.all(np.isfinite(at), axis=1)
-        found = np.full(len(at), np.inf)
-        # the margin covers the rounding of the shifted coordinates
-        found[finite], _ = centre_line.tree.query(at[finite], distance_upper_bound=cutoff_px + reach_px + 1e-6)
-        self.near = np.flatnonzero(np.isfinite(found))
-        self.distance = np.full(len(uv_px), float(cutoff_px))
 
-    def __call__(self, shift_px) -> float:
-        distance = self.distance.copy()
-        distance[self.near] = self.centre_line.distances(self.uv_px[self.near] + np.asarray(shift_px), self.cutoff_px)
-        return float(np.sum(self.weights * distance ** 2) / self.total)
+    def __call__(self, shifts_px: Sequence[np.ndarray]) -> list[float]:
+        if not len(shifts_px):
+            return []
+        moved = np.concatenate([self.uv_px + np.asarray(shift, dtype=float) for shift in shifts_px])
+        found = self.centre_line.distances(moved, self.cutoff_px).reshape(len(shifts_px), len(self.uv_px))
+        return [float(np.sum(self.weights * distance ** 2) / self.total) for distance in found]
 
 
 def _view_direction(projection: Projection) -> np.ndarray:
