@@ -293,15 +293,15 @@ def match_pair(projection_i: Projection, projection_j: Projection, centre_line_i
     denominator = np.maximum(1.0 - ab ** 2, 1e-12)
     s = (ab * bw - aw) / denominator
     t = (bw - ab * aw) / denominator
-    points = 0.5 * ((c_i + s[:, None] * a) + (c_j + t[:, None] * b))
     # a true match joins two silhouettes of the same vessel: the same radius in mm at the point
     focal_i, focal_j = max(projection_i.focal_lengths_px), max(projection_j.focal_lengths_px)
     radius_i = centre_line_i.half_width_px[ii] * s / focal_i
     radius_j = centre_line_j.half_width_px[jj] * t / focal_j
     pixel_mm = np.maximum(s / focal_i, t / focal_j)
     same = np.abs(radius_i - radius_j) <= RADIUS_TOLERANCE * np.maximum(radius_i, radius_j) + pixel_mm
-    keep = same & (s > 0) & (t > 0)
-    ii, jj, points = ii[keep], jj[keep], points[keep]
+    keep = np.flatnonzero(same & (s > 0) & (t > 0))
+    ii, jj, s, t = ii[keep], jj[keep], s[keep], t[keep]
+    points = 0.5 * ((c_i + s[:, None] * a[keep]) + (c_j + t[:, None] * b[keep]))  # of the matches kept only
     counts_i = np.bincount(ii, minlength=len(phi_i))
     counts_j = np.bincount(jj, minlength=len(phi_j))
     weights = 1.0 / np.maximum(counts_i[ii], counts_j[jj])
