@@ -314,11 +314,13 @@ def _cost(centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarray, shift
 
 
 def fit_view_shift(centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarray, start_px, *,
-                   reach_px: int = 3, cutoff_px: float = 2.0) -> tuple[np.ndarray, float]:
+                   reach_px: int = 3, cutoff_px: float = 2.0,
+                   steps_px: Sequence[float] = (0.5, 0.25, 0.1, 0.05)) -> tuple[np.ndarray, float]:
     """The shift near ``start_px`` that brings projected points ``uv_px`` onto the centreline.
 
     Minimises the fit cost over integer shifts within ``reach_px`` of the start, then on 3 x 3
-    grids of step 0.5, 0.25, 0.1 and 0.05 px around the best. Returns ``(shift (2,), cost)``.
+    grids of step ``steps_px`` (0.5, 0.25, 0.1 and 0.05 px) around the best. Returns ``(shift (2,),
+    cost)``.
     """
     start = np.asarray(start_px, dtype=float)
     if centre_line.tree is None or len(uv_px) == 0 or np.sum(weights) <= 0:
@@ -328,7 +330,7 @@ def fit_view_shift(centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarr
     grid = [start + (du, dv) for du in offsets for dv in offsets]
     cost = _ShiftCost(centre_line, uv_px, weights, cutoff_px)
     known: dict[bytes, float] = {}  # every grid but the first repeats its centre
-    for step in (0.5, 0.25, 0.1, 0.05, None):
+    for step in (*steps_px, None):
         new = [g for g in grid if g.tobytes() not in known]
         known.update(zip([g.tobytes() for g in new], cost(new)))
         costs = [known[g.tobytes()] for g in grid]
@@ -609,11 +611,21 @@ def fit_view_scale(projections: Sequence[Projection], centre_lines: Sequence[Cen
     uv_here = here.project(points)
     centroid = np.average(uv_here, axis=0, weights=weights)
     _, cost_here = fit_view_shift(centre_lines[view], uv_here, weights, (0.0, 0.0), reach_px=1, cutoff_px=cutoff_px)
-    best = (cost_here, 1.0, shifts[view].copy())
+    # every factor's shift to a quarter pixel, then the best few on to 0.05 px (the same grids as one fit)
+    coarse = []
     for factor in factors:
         uv = projections[view].magnified(float(factor)).shifted(*shifts[view]).project(points)
         start = centroid - np.average(uv, axis=0, weights=weights)
-        shift, cost = fit_view_shift(centre_lines[view], uv, weights, start, reach_px=1, cutoff_px=cutoff_px)
+        shift, cost = fit_view_shift(centre_lines[view], uv, weights, start, reach_px=1, cutoff_px=cutoff_px,
+                                     steps_px=(0.5, 0.25))
+        coarse.append((cost, float(factor), uv, shift))
+    best = (cost_here, 1.0, shifts[view].copy())
+    for _, factor, uv, shift in sorted(coarse, key=lambda c: c[0])[:_REFINED_FACTORS]:
+        shift, cost = fit_view_shift(centre_lines[view], uv, weights, shift, reach_px=0, cutoff_px=cutoff_px,
+                                     steps_px=(0.1, 0.05))
         if cost < best[0]:
-            best = (cost, float(factor), shifts[view] + shift)
+            best = (cost, factor, shifts[view] + shift)
     return best[1], best[2], best[0], cost_here
+
+
+_REFINED_FACTORS = 3  # fit_view_scale carries this many of the best factors on from a quarter pixel to 0.05 px
