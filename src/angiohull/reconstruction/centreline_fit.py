@@ -29,8 +29,7 @@ uses that:
    the cutoff from any centreline, which a per-pixel lower bound shows at once, and for the rest
    each pixel lists the few centreline points that can be nearest.
 4. **Sweeps.** Each view in turn is fitted to the points triangulated from the others (the
-   others with their current shifts), until no view moves by more than 0.05 px once the common
-   translation of a sweep's moves is taken out (the sweeps then only carry all views along it).
+   others with their current shifts), until no view moves by more than 0.05 px.
 
 A common 3D translation of the object shifts all views consistently and leaves the cost unchanged
 to first order (only the magnification changes, about 0.1 % per mm at a source distance of
