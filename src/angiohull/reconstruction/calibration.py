@@ -65,8 +65,9 @@ that maximises that agreement (three views or more; two views: see the end):
    Per round: the candidate views are those whose own centreline cost some factor within
    ``1 -+ SCALE_RANGE`` lowers by ``_MIN_SCALE_GAIN`` (a quick screen,
    :func:`.centreline_fit.fit_view_scale`); each is fitted jointly from every factor in
-   ``_SCALE_STARTS``, starting both from the shift-only outcome and from the header's shifts (a
-   wrongly scaled view can mislead the shift search into moving other views). The lowest summed
+   ``_SCALE_STARTS``, starting from the shift-only outcome and from the header's shifts (a
+   wrongly scaled view can mislead the shift search into moving other views), each start only where
+   the screen saw that view's scale from it (fitting from both doubled the fits). The lowest summed
    cost wins the round, followed by the gauge and step 6 (near-ties), if it lowers the summed cost
    by ``_MIN_SCALE_EVIDENCE`` against the shifts alone (first round) or by ``_MIN_SCALE_GAIN``
    against the previous round; a true 10 % scale lowered it by 10-16 % (4 trees), while spurious
@@ -814,17 +815,18 @@ def _coarse_factors() -> np.ndarray:
     return 1.0 + np.arange(-SCALE_RANGE, SCALE_RANGE + _SCALE_STEP / 2, _SCALE_STEP)
 
 
-def _scale_candidates(current: Sequence[Projection], centre_lines: Sequence[Centreline], starts, views) -> list[int]:
+def _scale_candidates(current: Sequence[Projection], centre_lines: Sequence[Centreline], starts,
+                      views) -> list[tuple[int, int]]:
     """The views among ``views`` whose own centreline cost some image scale within SCALE_RANGE lowers
     by _MIN_SCALE_GAIN at least, from any of the ``starts`` (shifts): a quick screen, one view at a
-    time against the others as they stand."""
+    time against the others as they stand. Returns ``(view, start index)`` for every view and start
+    where it does."""
     found = []
     for v in views:
-        for shifts in starts:
+        for index, shifts in enumerate(starts):
             _, _, cost, cost_here = fit_view_scale(current, centre_lines, shifts, v, _coarse_factors())
             if cost <= (1.0 - _MIN_SCALE_GAIN) * cost_here:
-                found.append(v)
-                break
+                found.append((v, index))
     return found
 
 
@@ -832,7 +834,8 @@ def _scales_jointly(projections, centre_lines, shifts_only) -> tuple[np.ndarray,
     """Step 7 with up to JOINT_FIT_MAX_VIEWS views: per round, every candidate view's scale is
     fitted together with all views' shifts (:func:`.centreline_fit.fit_scales_jointly`) from each
     factor in _SCALE_STARTS, starting from the shift-only outcome and from the header's shifts (a
-    wrong scale can mislead the shift search into moving other views). The lowest summed cost wins
+    wrong scale can mislead the shift search into moving other views), each start only where the
+    screen (:func:`_scale_candidates`) saw that view's scale from it. The lowest summed cost wins
     the round if it lowers the cost by _MIN_SCALE_EVIDENCE against shifts alone (first round) or by
     _MIN_SCALE_GAIN against the previous round."""
     n = len(projections)
@@ -847,15 +850,15 @@ def _scales_jointly(projections, centre_lines, shifts_only) -> tuple[np.ndarray,
         candidates = _scale_candidates(current, centre_lines, [s for s, _ in starts],
                                        [v for v in range(n) if v not in scaled])
         trials = []
-        for v in candidates:
+        for v, index in candidates:  # from the starts where the screen saw the scale only
+            start, start_translation = starts[index]
             for factor in _SCALE_STARTS:
                 trial = scales.copy()
                 trial[v] *= factor
                 gauge = np.vstack([_jacobian(p.magnified(f)) for p, f in zip(projections, trial)])
-                for start, start_translation in starts:
-                    fitted_scales, fitted, cost = fit_scales_jointly(projections, centre_lines, trial, start,
-                                                                     scaled + [v], gauge, cutoff_px=_JOINT_CUTOFF_PX)
-                    trials.append((cost, fitted_scales, fitted, start_translation))
+                fitted_scales, fitted, cost = fit_scales_jointly(projections, centre_lines, trial, start,
+                                                                 scaled + [v], gauge, cutoff_px=_JOINT_CUTOFF_PX)
+                trials.append((cost, fitted_scales, fitted, start_translation))
         if not trials:
             break
         cost, fitted_scales, fitted, start_translation = min(trials, key=lambda t: t[0])
