@@ -306,6 +306,9 @@ def _disc(radius: float, *, strict: bool = False) -> np.ndarray:
     return distance < radius if strict else distance <= radius
 
 
+_MAX_DISC = 64  # a larger disc is quicker as a distance transform (the coarsest level's, about 120 offsets)
+
+
 def _dilated(image: np.ndarray, footprint: np.ndarray) -> np.ndarray:
     """``image`` (bool) dilated by a small symmetric ``footprint`` (nothing beyond the border): one
     shifted OR per offset, much quicker than a general dilation for a footprint of a few dozen."""
@@ -331,8 +334,9 @@ class _Level:
         self.threshold = max(threshold_px, 0.75 * spacing_px)
         self.sharp_threshold = threshold_px  # the coverage is judged with the reconstruction's own threshold
         self.cell_reach_px = threshold_px + 0.5 * np.sqrt(3.0) * spacing_px  # a lattice point's cell, projected
-        near = _disc(self.threshold, strict=True)  # distance transform < threshold, as a dilation
-        self.near = [_dilated(m, near) for m in masks]
+        near = _disc(self.threshold, strict=True)  # distance transform < threshold, as a dilation when small
+        self.near = [_dilated(m, near) if np.count_nonzero(near) <= _MAX_DISC else
+                     ndi.distance_transform_edt(~m) < self.threshold for m in masks]
         self._spectra: list[dict] = [{} for _ in masks]  # per view: the transform of its padded mask, by window
         self._reach_disc = _disc(self.cell_reach_px)
         self._hulls: dict[tuple, np.ndarray] = {}
