@@ -115,13 +115,14 @@ class Centreline:
             index = on[near]
             rows = self._candidate_row[on_rows[near], on_cols[near]]
             u, v = uv_px[index, 0][:, None], uv_px[index, 1][:, None]
+            # the square root of the least square: the same as the least root (rounding keeps order)
             du, dv = u - self._narrow_u[rows], v - self._narrow_v[rows]
-            nearest = np.sqrt(du * du + dv * dv).min(axis=1)
+            nearest = (du * du + dv * dv).min(axis=1)
             wide = np.flatnonzero(self._overflows[rows])
             if len(wide):  # the same minimum over all of these pixels' candidates
                 du, dv = u[wide] - self._wide_u[rows[wide]], v[wide] - self._wide_v[rows[wide]]
-                nearest[wide] = np.sqrt(du * du + dv * dv).min(axis=1)
-            distance[index] = np.minimum(nearest, cutoff_px)
+                nearest[wide] = (du * du + dv * dv).min(axis=1)
+            distance[index] = np.minimum(np.sqrt(nearest), cutoff_px)
         if ask.any():
             found, _ = self.tree.query(uv_px[ask], distance_upper_bound=cutoff_px)
             distance[ask] = np.minimum(found, cutoff_px)  # misses come back as inf
