@@ -425,10 +425,11 @@ def polish_shifts(projections: Sequence[Projection], centre_lines: Sequence[Cent
     if len(projections) < 3:
         raise ValueError("centreline fitting needs at least three views")
     pair_lists = [_pairs_for(v, projections) for v in range(len(projections))]
+    matched: dict = {}  # pairs (and rays) of views that have not moved since are reused
     for sweep in range(max_sweeps):
         moved = 0.0
         for v, projection in enumerate(projections):
-            points, weights = _triangulated_for(pair_lists[v], projections, centre_lines, shifts)
+            points, weights = _triangulated_for(pair_lists[v], projections, centre_lines, shifts, matched)
             new, _ = fit_view_shift(centre_lines[v], projection.project(points) if len(points) else points[:, :2],
                                     weights, shifts[v], reach_px=reach_px if sweep == 0 else 1, cutoff_px=cutoff_px)
             moved = max(moved, float(np.max(np.abs(new - shifts[v]))))
