@@ -58,6 +58,7 @@ class Projection:
     matrix: np.ndarray
     image_shape: tuple[int, int]
     _centre: np.ndarray = field(init=False, repr=False)
+    _k: np.ndarray | None = field(init=False, repr=False, default=None)  # intrinsics(), once asked for
 
     def __post_init__(self) -> None:
         try:
@@ -140,13 +141,15 @@ class Projection:
         From an RQ decomposition of the left 3x3 block; signs of mirrored matrices are moved into
         the rotation factor so that the focal lengths come out positive.
         """
-        import scipy.linalg  # only here: importing it costs a noticeable share of a command's start
+        if self._k is None:  # the matrix is read-only: decompose it once (calibration asks thousands of times)
+            import scipy.linalg  # only here: importing it costs a noticeable share of a command's start
 
-        k, _ = scipy.linalg.rq(self.matrix[:, :3])
-        signs = np.sign(np.diag(k))
-        signs[signs == 0] = 1.0
-        k = k * signs  # flips columns of K (and rows of the rotation): K @ R unchanged
-        return k / k[2, 2]
+            k, _ = scipy.linalg.rq(self.matrix[:, :3])
+            signs = np.sign(np.diag(k))
+            signs[signs == 0] = 1.0
+            k = k * signs  # flips columns of K (and rows of the rotation): K @ R unchanged
+            object.__setattr__(self, "_k", _v.readonly_copy(k / k[2, 2]))
+        return self._k.copy()
 
     @property
     def focal_lengths_px(self) -> tuple[float, float]:

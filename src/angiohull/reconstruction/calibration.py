@@ -65,8 +65,9 @@ that maximises that agreement (three views or more; two views: see the end):
    Per round: the candidate views are those whose own centreline cost some factor within
    ``1 -+ SCALE_RANGE`` lowers by ``_MIN_SCALE_GAIN`` (a quick screen,
    :func:`.centreline_fit.fit_view_scale`); each is fitted jointly from every factor in
-   ``_SCALE_STARTS``, starting both from the shift-only outcome and from the header's shifts (a
-   wrongly scaled view can mislead the shift search into moving other views). The lowest summed
+   ``_SCALE_STARTS``, starting from the shift-only outcome and from the header's shifts (a
+   wrongly scaled view can mislead the shift search into moving other views), each start only where
+   the screen saw that view's scale from it (fitting from both doubled the fits). The lowest summed
    cost wins the round, followed by the gauge and step 6 (near-ties), if it lowers the summed cost
    by ``_MIN_SCALE_EVIDENCE`` against the shifts alone (first round) or by ``_MIN_SCALE_GAIN``
    against the previous round; a true 10 % scale lowered it by 10-16 % (4 trees), while spurious
@@ -265,10 +266,12 @@ def _hull(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattic
     return ENGINES["octree"](lattice, list(projections), list(masks), threshold_px=threshold_px).points_mm
 
 
-def _support_map(points: np.ndarray, projection: Projection, mask_near: np.ndarray, window: int) -> np.ndarray:
+def _support_map(points: np.ndarray, projection: Projection, mask_near: np.ndarray, window: int,
+                 spectra: dict | None = None) -> np.ndarray:
     """``f(s)`` for integer shifts ``|s| <= window``: fraction of points landing on ``mask_near``.
 
     Returns an array ``(2 window + 1, 2 window + 1)`` indexed ``[dv + window, du + window]``.
+    ``spectra`` remembers the padded mask's transform by window (it does not change between calls).
     """
     rows, cols = mask_near.shape
     h = projection.homogeneous(points)
@@ -282,12 +285,42 @@ def _support_map(points: np.ndarray, projection: Projection, mask_near: np.ndarr
     shape = (next_fast_len(rows + 2 * window, real=True), next_fast_len(cols + 2 * window, real=True))
     density = np.zeros(shape)
     np.add.at(density, (iv[ok], iu[ok]), 1.0)
-    canvas = np.zeros(shape)
-    canvas[window:window + rows, window:window + cols] = mask_near
-    correlation = irfft2(np.conj(rfft2(density)) * rfft2(canvas), s=shape)
+    spectra = {} if spectra is None else spectra
+    if window not in spectra:
+        canvas = np.zeros(shape)
+        canvas[window:window + rows, window:window + cols] = mask_near
+        spectra[window] = rfft2(canvas)
+    correlation = irfft2(np.conj(rfft2(density)) * spectra[window], s=shape)
     offsets = np.arange(-window, window + 1)
     block = correlation[np.ix_(offsets % shape[0], offsets % shape[1])]
     return np.clip(np.round(block), 0, None) / max(1, len(points))
+
+
+def _disc(radius: float, *, strict: bool = False) -> np.ndarray:
+    """The offsets ``(dy, dx)`` with ``sqrt(dx**2 + dy**2) <= radius`` (``< radius`` if ``strict``),
+    as a boolean footprint: a dilation with it marks the pixels whose Euclidean distance transform
+    to the input is within ``radius`` (the same square roots of whole numbers)."""
+    r = int(np.floor(radius))
+    dy, dx = np.mgrid[-r:r + 1, -r:r + 1]
+    distance = np.sqrt((dx * dx + dy * dy).astype(float))
+    return distance < radius if strict else distance <= radius
+
+
+_MAX_DISC = 64  # a larger disc is quicker as a distance transform (the coarsest level's, about 120 offsets)
+
+
+def _dilated(image: np.ndarray, footprint: np.ndarray) -> np.ndarray:
+    """``image`` (bool) dilated by a small symmetric ``footprint`` (nothing beyond the border): one
+    shifted OR per offset, much quicker than a general dilation for a footprint of a few dozen."""
+    out = image.copy()
+    rows, cols = image.shape
+    r = footprint.shape[0] // 2
+    for dy, dx in np.argwhere(footprint) - r:
+        if (dy == 0 and dx == 0) or abs(dy) >= rows or abs(dx) >= cols:
+            continue
+        out[max(dy, 0):rows + min(dy, 0), max(dx, 0):cols + min(dx, 0)] |= \
+            image[max(-dy, 0):rows + min(-dy, 0), max(-dx, 0):cols + min(-dx, 0)]
+    return out
 
 
 class _Level:
@@ -301,7 +334,11 @@ class _Level:
         self.threshold = max(threshold_px, 0.75 * spacing_px)
         self.sharp_threshold = threshold_px  # the coverage is judged with the reconstruction's own threshold
         self.cell_reach_px = threshold_px + 0.5 * np.sqrt(3.0) * spacing_px  # a lattice point's cell, projected
-        self.near = [ndi.distance_transform_edt(~m) < self.threshold for m in masks]
+        near = _disc(self.threshold, strict=True)  # distance transform < threshold, as a dilation when small
+        self.near = [_dilated(m, near) if np.count_nonzero(near) <= _MAX_DISC else
+                     ndi.distance_transform_edt(~m) < self.threshold for m in masks]
+        self._spectra: list[dict] = [{} for _ in masks]  # per view: the transform of its padded mask, by window
+        self._reach_disc = _disc(self.cell_reach_px)
         self._hulls: dict[tuple, np.ndarray] = {}
 
     def hull(self, views: Sequence[int], shifts: np.ndarray, threshold: float) -> np.ndarray:
@@ -346,7 +383,8 @@ class _Level:
             c0, c1 = max(int(iu[ok].min()) - margin, 0), min(int(iu[ok].max()) + margin + 1, cols)
             hit = np.zeros((r1 - r0, c1 - c0), dtype=bool)
             hit[iv[ok] - r0, iu[ok] - c0] = True
-            reach = ndi.distance_transform_edt(~hit) <= self.cell_reach_px
+            # the pixels within the reach of a hit (the distance transform's test, as a dilation)
+            reach = _dilated(hit, self._reach_disc)
             values.append(float(np.count_nonzero(reach & mask[r0:r1, c0:c1]) / np.count_nonzero(mask)))
         return values
 
@@ -356,8 +394,8 @@ class _Level:
         for v in range(len(self.masks)):
             others = [i for i in range(len(self.masks)) if i != v]
             points = self.hull(others, shifts, self.threshold)
-            maps.append(_support_map(points, shift_projection(self.projections[v], *shifts[v]), self.near[v], window)
-                        if len(points) else None)
+            maps.append(_support_map(points, shift_projection(self.projections[v], *shifts[v]), self.near[v], window,
+                                     self._spectra[v]) if len(points) else None)
         return maps
 
 
@@ -781,17 +819,18 @@ def _coarse_factors() -> np.ndarray:
     return 1.0 + np.arange(-SCALE_RANGE, SCALE_RANGE + _SCALE_STEP / 2, _SCALE_STEP)
 
 
-def _scale_candidates(current: Sequence[Projection], centre_lines: Sequence[Centreline], starts, views) -> list[int]:
+def _scale_candidates(current: Sequence[Projection], centre_lines: Sequence[Centreline], starts,
+                      views) -> list[tuple[int, int]]:
     """The views among ``views`` whose own centreline cost some image scale within SCALE_RANGE lowers
     by _MIN_SCALE_GAIN at least, from any of the ``starts`` (shifts): a quick screen, one view at a
-    time against the others as they stand."""
+    time against the others as they stand. Returns ``(view, start index)`` for every view and start
+    where it does."""
     found = []
     for v in views:
-        for shifts in starts:
+        for index, shifts in enumerate(starts):
             _, _, cost, cost_here = fit_view_scale(current, centre_lines, shifts, v, _coarse_factors())
             if cost <= (1.0 - _MIN_SCALE_GAIN) * cost_here:
-                found.append(v)
-                break
+                found.append((v, index))
     return found
 
 
@@ -799,7 +838,8 @@ def _scales_jointly(projections, centre_lines, shifts_only) -> tuple[np.ndarray,
     """Step 7 with up to JOINT_FIT_MAX_VIEWS views: per round, every candidate view's scale is
     fitted together with all views' shifts (:func:`.centreline_fit.fit_scales_jointly`) from each
     factor in _SCALE_STARTS, starting from the shift-only outcome and from the header's shifts (a
-    wrong scale can mislead the shift search into moving other views). The lowest summed cost wins
+    wrong scale can mislead the shift search into moving other views), each start only where the
+    screen (:func:`_scale_candidates`) saw that view's scale from it. The lowest summed cost wins
     the round if it lowers the cost by _MIN_SCALE_EVIDENCE against shifts alone (first round) or by
     _MIN_SCALE_GAIN against the previous round."""
     n = len(projections)
@@ -814,15 +854,15 @@ def _scales_jointly(projections, centre_lines, shifts_only) -> tuple[np.ndarray,
         candidates = _scale_candidates(current, centre_lines, [s for s, _ in starts],
                                        [v for v in range(n) if v not in scaled])
         trials = []
-        for v in candidates:
+        for v, index in candidates:  # from the starts where the screen saw the scale only
+            start, start_translation = starts[index]
             for factor in _SCALE_STARTS:
                 trial = scales.copy()
                 trial[v] *= factor
                 gauge = np.vstack([_jacobian(p.magnified(f)) for p, f in zip(projections, trial)])
-                for start, start_translation in starts:
-                    fitted_scales, fitted, cost = fit_scales_jointly(projections, centre_lines, trial, start,
-                                                                     scaled + [v], gauge, cutoff_px=_JOINT_CUTOFF_PX)
-                    trials.append((cost, fitted_scales, fitted, start_translation))
+                fitted_scales, fitted, cost = fit_scales_jointly(projections, centre_lines, trial, start,
+                                                                 scaled + [v], gauge, cutoff_px=_JOINT_CUTOFF_PX)
+                trials.append((cost, fitted_scales, fitted, start_translation))
         if not trials:
             break
         cost, fitted_scales, fitted, start_translation = min(trials, key=lambda t: t[0])

@@ -82,7 +82,14 @@ class Centreline:
         self.uv_px = pixels + _centring_offsets(mask, skeleton, pixels, self.half_width_px)
         self.tree = cKDTree(self.uv_px) if len(self.uv_px) else None
         self.distance_floor_px, self._candidate_row, self._candidates = _distance_floor(self.tree, mask.shape)
-        self._candidate_uv = (np.append(self.uv_px[:, 0], np.inf), np.append(self.uv_px[:, 1], np.inf))  # + padding
+        if self._candidates is not None:
+            # the candidates' coordinates, padded with inf: the first _NARROW of each pixel, and all of
+            # them for the few pixels that have more (most have about five)
+            padded_u, padded_v = np.append(self.uv_px[:, 0], np.inf), np.append(self.uv_px[:, 1], np.inf)
+            self._wide_u, self._wide_v = padded_u[self._candidates], padded_v[self._candidates]
+            self._narrow_u = np.ascontiguousarray(self._wide_u[:, :_NARROW])
+            self._narrow_v = np.ascontiguousarray(self._wide_v[:, :_NARROW])
+            self._overflows = np.isfinite(self._wide_u[:, _NARROW:]).any(axis=1)
 
     def distances(self, uv_px: np.ndarray, cutoff_px: float) -> np.ndarray:
         """Distance from each point to the nearest centreline point, ``cutoff_px`` where it is
@@ -106,16 +113,23 @@ class Centreline:
         near = self.distance_floor_px[on_rows, on_cols] <= cutoff_px
         if near.any():
             index = on[near]
-            candidates = self._candidates[self._candidate_row[on_rows[near], on_cols[near]]]  # (M, C)
-            du = uv_px[index, 0][:, None] - self._candidate_uv[0][candidates]
-            dv = uv_px[index, 1][:, None] - self._candidate_uv[1][candidates]
-            distance[index] = np.minimum(np.sqrt(du * du + dv * dv).min(axis=1), cutoff_px)
+            rows = self._candidate_row[on_rows[near], on_cols[near]]
+            u, v = uv_px[index, 0][:, None], uv_px[index, 1][:, None]
+            # the square root of the least square: the same as the least root (rounding keeps order)
+            du, dv = u - self._narrow_u[rows], v - self._narrow_v[rows]
+            nearest = (du * du + dv * dv).min(axis=1)
+            wide = np.flatnonzero(self._overflows[rows])
+            if len(wide):  # the same minimum over all of these pixels' candidates
+                du, dv = u[wide] - self._wide_u[rows[wide]], v[wide] - self._wide_v[rows[wide]]
+                nearest[wide] = (du * du + dv * dv).min(axis=1)
+            distance[index] = np.minimum(np.sqrt(nearest), cutoff_px)
         if ask.any():
             found, _ = self.tree.query(uv_px[ask], distance_upper_bound=cutoff_px)
             distance[ask] = np.minimum(found, cutoff_px)  # misses come back as inf
         return distance
 
 
+_NARROW = 6  # Centreline.distances reads this many candidates of a pixel first (the rest where it has more)
 _FLOOR_REACH_PX = 4.0  # Centreline.distance_floor_px is measured out to this distance from the centreline
 _ROUNDING_PX = 1e-9  # the floor is lowered and the candidates' radius raised by this: exact despite rounding
 
@@ -134,19 +148,30 @@ def _distance_floor(tree: cKDTree | None, shape: tuple[int, int]):
     floor = np.full(shape, np.inf, dtype=np.float32)  # single precision, rounded down below: still a floor
     low = np.maximum(np.floor(tree.mins - _FLOOR_REACH_PX).astype(np.int64), 0)  # (u, v)
     high = np.minimum(np.ceil(tree.maxes + _FLOOR_REACH_PX).astype(np.int64) + 1, (shape[1], shape[0]))
-    v, u = np.mgrid[low[1]:high[1], low[0]:high[0]]
-    centres = np.column_stack([u.ravel(), v.ravel()]).astype(float)
+    # only the pixels within the reach of a point's nearest pixel (plus half a diagonal) are asked
+    box = np.zeros((high[1] - low[1], high[0] - low[0]), dtype=bool)
+    nearest = np.clip(np.floor(tree.data + 0.5).astype(np.int64) - low, 0, np.array(box.shape[::-1]) - 1)
+    box[nearest[:, 1], nearest[:, 0]] = True
+    r = int(np.ceil(_FLOOR_REACH_PX + np.sqrt(0.5)))
+    dy, dx = np.mgrid[-r:r + 1, -r:r + 1]
+    near = np.zeros_like(box)
+    for oy, ox in zip(dy[dx * dx + dy * dy <= r * r], dx[dx * dx + dy * dy <= r * r]):
+        near[max(oy, 0):box.shape[0] + min(oy, 0), max(ox, 0):box.shape[1] + min(ox, 0)] |= \
+            box[max(-oy, 0):box.shape[0] + min(-oy, 0), max(-ox, 0):box.shape[1] + min(-ox, 0)]
+    v, u = np.nonzero(near)
+    v, u = v + low[1], u + low[0]
+    centres = np.column_stack([u, v]).astype(float)
     found, _ = tree.query(centres, distance_upper_bound=_FLOOR_REACH_PX)
     band = np.isfinite(found)
     below = (found[band] - np.sqrt(0.5) - _ROUNDING_PX).astype(np.float32)
-    floor[v.ravel()[band], u.ravel()[band]] = np.nextafter(below, np.float32(-np.inf))
+    floor[v[band], u[band]] = np.nextafter(below, np.float32(-np.inf))
     lists = tree.query_ball_point(centres[band], found[band] + np.sqrt(2.0) + _ROUNDING_PX)
     counts = np.fromiter((len(c) for c in lists), dtype=np.int64, count=len(lists))
     candidates = np.full((len(lists), int(counts.max(initial=1))), tree.n, dtype=np.int32)
     candidates[np.arange(len(lists)).repeat(counts), _ranks(counts)] = np.concatenate(
         [np.asarray(c, dtype=np.int32) for c in lists]) if len(lists) else np.zeros(0, np.int32)
     candidate_row = np.zeros(shape, dtype=np.int32)
-    candidate_row[v.ravel()[band], u.ravel()[band]] = np.arange(len(lists))
+    candidate_row[v[band], u[band]] = np.arange(len(lists))
     return floor, candidate_row, candidates
 
 
@@ -160,11 +185,19 @@ def _skeleton_normals(skeleton: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     minor axis of the scatter of skeleton pixels within NORMAL_RADIUS_PX."""
     r = NORMAL_RADIUS_PX
     dy, dx = np.mgrid[-r:r + 1, -r:r + 1].astype(float)
-    disc = (dx ** 2 + dy ** 2 <= r * r).astype(float)
-    image = skeleton.astype(float)
+    inside = dx ** 2 + dy ** 2 <= r * r
     rows, cols = pixels[:, 1].astype(int), pixels[:, 0].astype(int)
-    moments = {key: ndi.correlate(image, disc * kernel, mode="constant")[rows, cols]
-               for key, kernel in (("n", 1.0), ("x", dx), ("y", dy), ("xx", dx * dx), ("xy", dx * dy), ("yy", dy * dy))}
+    # the skeleton's moments in the disc around each of its pixels (whole numbers: exact in any order)
+    padded = np.pad(skeleton.astype(bool), r)
+    moments = {key: np.zeros(len(pixels)) for key in ("n", "x", "y", "xx", "xy", "yy")}
+    for ox, oy in zip(dx[inside], dy[inside]):
+        hit = padded[rows + r + int(oy), cols + r + int(ox)]
+        moments["n"] += hit
+        moments["x"] += hit * ox
+        moments["y"] += hit * oy
+        moments["xx"] += hit * (ox * ox)
+        moments["xy"] += hit * (ox * oy)
+        moments["yy"] += hit * (oy * oy)
     n = moments["n"]
     cxx = moments["xx"] / n - (moments["x"] / n) ** 2
     cyy = moments["yy"] / n - (moments["y"] / n) ** 2
@@ -261,15 +294,15 @@ def match_pair(projection_i: Projection, projection_j: Projection, centre_line_i
     denominator = np.maximum(1.0 - ab ** 2, 1e-12)
     s = (ab * bw - aw) / denominator
     t = (bw - ab * aw) / denominator
-    points = 0.5 * ((c_i + s[:, None] * a) + (c_j + t[:, None] * b))
     # a true match joins two silhouettes of the same vessel: the same radius in mm at the point
     focal_i, focal_j = max(projection_i.focal_lengths_px), max(projection_j.focal_lengths_px)
     radius_i = centre_line_i.half_width_px[ii] * s / focal_i
     radius_j = centre_line_j.half_width_px[jj] * t / focal_j
     pixel_mm = np.maximum(s / focal_i, t / focal_j)
     same = np.abs(radius_i - radius_j) <= RADIUS_TOLERANCE * np.maximum(radius_i, radius_j) + pixel_mm
-    keep = same & (s > 0) & (t > 0)
-    ii, jj, points = ii[keep], jj[keep], points[keep]
+    keep = np.flatnonzero(same & (s > 0) & (t > 0))
+    ii, jj, s, t = ii[keep], jj[keep], s[keep], t[keep]
+    points = 0.5 * ((c_i + s[:, None] * a[keep]) + (c_j + t[:, None] * b[keep]))  # of the matches kept only
     counts_i = np.bincount(ii, minlength=len(phi_i))
     counts_j = np.bincount(jj, minlength=len(phi_j))
     weights = 1.0 / np.maximum(counts_i[ii], counts_j[jj])
@@ -282,11 +315,13 @@ def _cost(centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarray, shift
 
 
 def fit_view_shift(centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarray, start_px, *,
-                   reach_px: int = 3, cutoff_px: float = 2.0) -> tuple[np.ndarray, float]:
+                   reach_px: int = 3, cutoff_px: float = 2.0,
+                   steps_px: Sequence[float] = (0.5, 0.25, 0.1, 0.05)) -> tuple[np.ndarray, float]:
     """The shift near ``start_px`` that brings projected points ``uv_px`` onto the centreline.
 
     Minimises the fit cost over integer shifts within ``reach_px`` of the start, then on 3 x 3
-    grids of step 0.5, 0.25, 0.1 and 0.05 px around the best. Returns ``(shift (2,), cost)``.
+    grids of step ``steps_px`` (0.5, 0.25, 0.1 and 0.05 px) around the best. Returns ``(shift (2,),
+    cost)``.
     """
     start = np.asarray(start_px, dtype=float)
     if centre_line.tree is None or len(uv_px) == 0 or np.sum(weights) <= 0:
@@ -294,12 +329,38 @@ def fit_view_shift(centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarr
 
     offsets = np.arange(-reach_px, reach_px + 1, dtype=float)
     grid = [start + (du, dv) for du in offsets for dv in offsets]
-    for step in (0.5, 0.25, 0.1, 0.05, None):
-        costs = [_cost(centre_line, uv_px, weights, g, cutoff_px) for g in grid]
+    cost = _ShiftCost(centre_line, uv_px, weights, cutoff_px)
+    known: dict[bytes, float] = {}  # every grid but the first repeats its centre
+    for step in (*steps_px, None):
+        new = [g for g in grid if g.tobytes() not in known]
+        known.update(zip([g.tobytes() for g in new], cost(new)))
+        costs = [known[g.tobytes()] for g in grid]
         best = grid[int(np.argmin(costs))]
         if step is None:
             return best, min(costs)
         grid = [best + (du * step, dv * step) for du in (-1, 0, 1) for dv in (-1, 0, 1)]
+
+
+class _ShiftCost:
+    """:func:`_cost` at the shifts of one grid in one call of :meth:`Centreline.distances`; the
+    same values to the last bit."""
+
+    def __init__(self, centre_line: Centreline, uv_px: np.ndarray, weights: np.ndarray, cutoff_px: float):
+        self.centre_line, self.uv_px, self.weights, self.cutoff_px = centre_line, uv_px, weights, cutoff_px
+        self.total = np.sum(weights)
+
+    def __call__(self, shifts_px: Sequence[np.ndarray]) -> list[float]:
+        costs: list[float] = []
+        chunk = max(1, _SHIFT_BATCH_POINTS // max(1, len(self.uv_px)))  # a larger batch leaves the cache
+        for first in range(0, len(shifts_px), chunk):
+            some = shifts_px[first:first + chunk]
+            moved = np.concatenate([self.uv_px + np.asarray(shift, dtype=float) for shift in some])
+            found = self.centre_line.distances(moved, self.cutoff_px).reshape(len(some), len(self.uv_px))
+            costs += [float(np.sum(self.weights * distance ** 2) / self.total) for distance in found]
+        return costs
+
+
+_SHIFT_BATCH_POINTS = 100_000  # _ShiftCost measures about this many shifted points per call (measured best)
 
 
 def _view_direction(projection: Projection) -> np.ndarray:
@@ -328,20 +389,25 @@ def _triangulated_for(pairs: Sequence[tuple[int, int]], projections: Sequence[Pr
                       centre_lines: Sequence[Centreline], shifts_px: np.ndarray,
                       matched: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The points triangulated from ``pairs`` of views (those that fit a view: :func:`_pairs_for`;
-    weights: every pair counts the same). ``matched`` caches :func:`match_pair` for one set of shifts."""
+    weights: every pair counts the same). ``matched`` caches :func:`match_pair` and the views' rays,
+    by the views' matrices and shifts: a search that moves some views reuses the pairs of the others."""
     matched = {} if matched is None else matched
+    if len(matched) > _MATCHED_ENTRIES:
+        matched.clear()
     parts = []
     for i, j in pairs:
-        if (i, j) not in matched:
+        keys = {k: (k, projections[k].matrix.tobytes(), np.asarray(shifts_px[k], dtype=float).tobytes()) for k in (i, j)}
+        pair_key = (keys[i], keys[j])
+        if pair_key not in matched:
             views = {}
             for k in (i, j):  # a view's rays serve every pair it is in
-                if ("view", k) not in matched:
+                if keys[k] not in matched:
                     shifted = projections[k].shifted(*shifts_px[k])
-                    matched["view", k] = (shifted, centreline_rays(shifted, centre_lines[k]))
-                views[k] = matched["view", k]
-            matched[i, j] = match_pair(views[i][0], views[j][0], centre_lines[i], centre_lines[j],
-                                       rays_i=views[i][1], rays_j=views[j][1])
-        parts.append(matched[i, j])
+                    matched[keys[k]] = (shifted, centreline_rays(shifted, centre_lines[k]))
+                views[k] = matched[keys[k]]
+            matched[pair_key] = match_pair(views[i][0], views[j][0], centre_lines[i], centre_lines[j],
+                                           rays_i=views[i][1], rays_j=views[j][1])
+        parts.append(matched[pair_key])
     parts = [(x, w / w.sum()) for x, w in parts if len(x)]
     if not parts:
         return np.zeros((0, 3)), np.zeros(0)
@@ -359,10 +425,11 @@ def polish_shifts(projections: Sequence[Projection], centre_lines: Sequence[Cent
     if len(projections) < 3:
         raise ValueError("centreline fitting needs at least three views")
     pair_lists = [_pairs_for(v, projections) for v in range(len(projections))]
+    matched: dict = {}  # pairs (and rays) of views that have not moved since are reused
     for sweep in range(max_sweeps):
         moved = 0.0
         for v, projection in enumerate(projections):
-            points, weights = _triangulated_for(pair_lists[v], projections, centre_lines, shifts)
+            points, weights = _triangulated_for(pair_lists[v], projections, centre_lines, shifts, matched)
             new, _ = fit_view_shift(centre_lines[v], projection.project(points) if len(points) else points[:, :2],
                                     weights, shifts[v], reach_px=reach_px if sweep == 0 else 1, cutoff_px=cutoff_px)
             moved = max(moved, float(np.max(np.abs(new - shifts[v]))))
@@ -381,9 +448,13 @@ def consistency_cost(projections: Sequence[Projection], centre_lines: Sequence[C
     return _summed_cost(projections, centre_lines, np.asarray(shifts_px, dtype=float), pair_lists, cutoff_px)
 
 
-def _summed_cost(projections, centre_lines, shifts: np.ndarray, pair_lists, cutoff_px: float) -> float:
+_MATCHED_ENTRIES = 96  # a cache of _triangulated_for beyond this many entries starts afresh
+
+
+def _summed_cost(projections, centre_lines, shifts: np.ndarray, pair_lists, cutoff_px: float,
+                 matched: dict | None = None) -> float:
     total = 0.0
-    matched: dict = {}  # a pair of views serves several views' fits
+    matched = {} if matched is None else matched  # a pair of views serves several views' fits
     for v, projection in enumerate(projections):
         points, weights = _triangulated_for(pair_lists[v], projections, centre_lines, shifts, matched)
         if len(points) == 0 or centre_lines[v].tree is None:
@@ -454,9 +525,10 @@ def fit_jointly(projections: Sequence[Projection], centre_lines: Sequence[Centre
     basis = np.zeros((len(local), 2 * n))
     basis[:, columns] = local
     pair_lists = [_pairs_for(v, projections) for v in range(n)]
+    matched: dict = {}  # a trial step moves some views only: the pairs of the others are reused
 
     def cost(x: np.ndarray) -> float:
-        return _summed_cost(projections, centre_lines, x.reshape(-1, 2), pair_lists, cutoff_px)
+        return _summed_cost(projections, centre_lines, x.reshape(-1, 2), pair_lists, cutoff_px, matched)
 
     offsets = [(du, dv) for du in range(-reach_px, reach_px + 1) for dv in range(-reach_px, reach_px + 1)]
     for v in free if reach_px > 0 else ():  # the best integer offset, one view after another
@@ -490,6 +562,7 @@ def fit_scales_jointly(projections: Sequence[Projection], centre_lines: Sequence
     scales = np.asarray(scales, dtype=float)
     start = np.asarray(shifts_px, dtype=float).ravel()
     pair_lists = [_pairs_for(v, projections) for v in range(n)]
+    matched: dict = {}  # as in fit_jointly
     pivots = []  # (view, centroid (2,) - principal point (2,), RMS radius px)
     for v in views:
         uv = centre_lines[v].uv_px
@@ -508,7 +581,7 @@ def fit_scales_jointly(projections: Sequence[Projection], centre_lines: Sequence
     def cost(x: np.ndarray) -> float:
         trial_scales, trial_shifts = unpack(x)
         return _summed_cost([p.magnified(f) for p, f in zip(projections, trial_scales)], centre_lines, trial_shifts,
-                            pair_lists, cutoff_px)
+                            pair_lists, cutoff_px, matched)
 
     basis = _off_gauge_basis(gauge_directions, 2 * n)
     directions = np.zeros((len(basis) + len(pivots), 2 * n + len(pivots)))
@@ -538,11 +611,21 @@ def fit_view_scale(projections: Sequence[Projection], centre_lines: Sequence[Cen
     uv_here = here.project(points)
     centroid = np.average(uv_here, axis=0, weights=weights)
     _, cost_here = fit_view_shift(centre_lines[view], uv_here, weights, (0.0, 0.0), reach_px=1, cutoff_px=cutoff_px)
-    best = (cost_here, 1.0, shifts[view].copy())
+    # every factor's shift to a quarter pixel, then the best few on to 0.05 px (the same grids as one fit)
+    coarse = []
     for factor in factors:
         uv = projections[view].magnified(float(factor)).shifted(*shifts[view]).project(points)
         start = centroid - np.average(uv, axis=0, weights=weights)
-        shift, cost = fit_view_shift(centre_lines[view], uv, weights, start, reach_px=1, cutoff_px=cutoff_px)
+        shift, cost = fit_view_shift(centre_lines[view], uv, weights, start, reach_px=1, cutoff_px=cutoff_px,
+                                     steps_px=(0.5, 0.25))
+        coarse.append((cost, float(factor), uv, shift))
+    best = (cost_here, 1.0, shifts[view].copy())
+    for _, factor, uv, shift in sorted(coarse, key=lambda c: c[0])[:_REFINED_FACTORS]:
+        shift, cost = fit_view_shift(centre_lines[view], uv, weights, shift, reach_px=0, cutoff_px=cutoff_px,
+                                     steps_px=(0.1, 0.05))
         if cost < best[0]:
-            best = (cost, float(factor), shifts[view] + shift)
+            best = (cost, factor, shifts[view] + shift)
     return best[1], best[2], best[0], cost_here
+
+
+_REFINED_FACTORS = 3  # fit_view_scale carries this many of the best factors on from a quarter pixel to 0.05 px
