@@ -757,3 +757,23 @@ def test_a_stub_whose_continuation_leaves_its_first_point_adds_no_sample_and_no_
     assert roles["distal main"].branch == 2 and roles["side"].branch == 3  # the proximal arm runs back along A
     np.testing.assert_allclose(roles["proximal main"].direction, [-1, 0, 0], atol=1e-9)
     np.testing.assert_allclose(roles["distal main"].direction, [1, 0, 0], atol=1e-9)
+
+
+def test_a_lesion_at_a_junction_does_not_split_the_vessel_it_narrows():
+    # A (radius 2 mm) narrows to 0.8 mm over 12-20 mm; C leaves A at 15 mm and carries the vessel
+    # straight on at 2 mm, while A's last 5 mm (narrow) run on a little aside. At the junction A is
+    # 0.8 mm wide: 4 of those radii (3.2 mm) would not hold A's 5 mm tail as a stub; 4 of C's do
+    from angiohull.qca.vessels import tree_vessels
+
+    arc = np.linspace(0, 20, 41)
+    radius = np.where(arc < 10, 2.0, np.where(arc < 12, 2.0 - 0.6 * (arc - 10), 0.8))
+    a = Branch(np.column_stack([arc, np.where(arc > 15, 0.3 * (arc - 15), 0.0), np.zeros(41)]), radius, name="a")
+    c_arc = np.linspace(0, 40, 81)
+    c_radius = np.where(c_arc < 3, 0.8 + 0.4 * c_arc, 2.0)
+    c = Branch(np.column_stack([15 + c_arc, np.zeros(81), np.zeros(81)]), c_radius, parent=0, parent_point=30, name="c")
+    tree = VesselTree((a, c))
+    vessels = tree_vessels(tree)
+    assert vessels.continues_into == {0: 1}
+    (lesion,) = [les for les in analyse_tree(tree).lesions if les.diameter_stenosis_pct >= 50]
+    assert abs(lesion.reference_diameter_mm - 4.0) < 0.1
+    assert abs(lesion.mld_mm - 1.6) < 0.05

@@ -13,8 +13,9 @@ nothing healthy beyond them for the reference fit.
 The analysis therefore reads the tree as vessels. A branch **continues into** one of its children
 when:
 
-* the parent holds no more than ``stub_radii`` times its radius there past that child's junction
-  (the rest of the parent is a stub), and does not end where two or more children begin (a
+* the parent holds no more than ``stub_radii`` times its radius there (or the child's mean radius
+  over its first 3 mm, when wider: a lesion at the junction narrows the parent there) past that
+  child's junction (the rest of the parent is a stub), and does not end where two or more children begin (a
   bifurcation at the parent's end, as at the end of a left main), and
 * among the children in that stub, that child best continues the parent: the largest
   ``cos(turn) + (radius / largest radius) / 2`` over 3 mm (the tree builder's own rule), and
@@ -100,13 +101,22 @@ def _subtree_lengths(tree: VesselTree) -> list[float]:
     return total
 
 
+def _start_radius(branch) -> float:
+    """Mean radius of a branch over its first ``_DIRECTION_MM`` (its first point alone when shorter)."""
+    near = branch.radius_mm[branch.arc_length_mm <= _DIRECTION_MM]
+    return float(near.mean()) if near.size else float(branch.radius_mm[0])
+
+
 def _continuation(tree: VesselTree, parent: int, children: list[int], subtree: list[float],
                   settings: VesselSettings) -> int | None:
     p = tree.branches[parent]
     arc = p.arc_length_mm
     end = float(arc[-1])
     at = {c: tree.branches[c].parent_point for c in children}
-    stub = [c for c in children if end - arc[at[c]] <= settings.stub_radii * p.radius_mm[at[c]]]
+    # the radius there, or the child's own over its first 3 mm when wider (a lesion at the junction
+    # narrows the parent there and would shorten the stub it may hold)
+    reach = {c: max(float(p.radius_mm[at[c]]), _start_radius(tree.branches[c])) for c in children}
+    stub = [c for c in children if end - arc[at[c]] <= settings.stub_radii * reach[c]]
     if not stub:
         return None
     at_end = [c for c in stub if tree.branches[c].parent_point == p.n_points - 1]
