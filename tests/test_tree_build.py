@@ -236,3 +236,24 @@ def test_two_views_remove_no_branch_for_want_of_a_view_that_sees_it():
                          centerlines=False)
     assert result.tree is not None and result.tree_build.unseen_leaves_removed == 0
     assert result.tree.n_branches > 2  # the two-view hull's phantom branches stay, with the true ones
+
+
+def test_a_tip_whose_cap_lies_past_an_image_edge_stays_and_one_off_the_mask_is_cut_back():
+    # one view along z, a mask filling the image up to its right edge (u = 99.5, x = 5 mm): a tip
+    # at x = 6 mm, its cap (+1 radius) at u = 119.5 past the edge, stays where it is (no view shows
+    # the cap off its mask; cut back to the image, it would move by -2 mm); with the mask ending at
+    # u = 79.5 (x = 3 mm), a tip at x = 3.5 mm (cap at u = 94.5, in the image, off the mask) is
+    # cut back until its cap is on the mask again: -1.5 mm (hand-worked)
+    from angiohull.geometry import Projection
+    from angiohull.reconstruction.vessel_tree import _tip_move
+
+    # a pinhole 1000 mm from the plane z = 0, 10 px per mm there: u = 10 x + 49.5 at z = 0
+    intrinsics = np.array([[10_000.0, 0, 49.5], [0, 10_000.0, 49.5], [0, 0, 1]])
+    projection = Projection(intrinsics @ np.hstack([np.eye(3), [[0.0], [0.0], [1000.0]]]), (100, 100))
+    outward, radius = np.array([1.0, 0.0, 0.0]), 1.0
+    full = np.ones((100, 100), dtype=np.float32)
+    assert _tip_move(np.array([6.0, 0.0, 0.0]), outward, radius, [projection], [full], 3.0, 0.1) == 0.0
+    shorter = full.copy()
+    shorter[:, 80:] = 0.0
+    move = _tip_move(np.array([3.5, 0.0, 0.0]), outward, radius, [projection], [shorter], 3.0, 0.1)
+    assert move == pytest.approx(-1.5, abs=0.11)
