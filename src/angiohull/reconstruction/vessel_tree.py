@@ -491,6 +491,14 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings) -> tuple["_Arra
     return _Arrays.of(tree), distance
 
 
+def _fitted_line(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares line through ``points``: ``(centroid, unit direction from the first point
+    towards the last)``."""
+    centre = points.mean(axis=0)
+    axis = np.linalg.svd(points - centre, full_matrices=False)[2][0]
+    return centre, (-axis if axis @ (points[-1] - points[0]) < 0 else axis)
+
+
 def _junction_on_axes(arrays: _Arrays, settings: TreeSettings) -> tuple[_Arrays, list[float]]:
     """Each child's start moved to where its own axis, extended back, meets its parent's (module
     notes, step 5). Returns the new arrays and, per child moved, how far its junction moved (mm)."""
@@ -516,10 +524,7 @@ def _junction_on_axes(arrays: _Arrays, settings: TreeSettings) -> tuple[_Arrays,
         piece = child[first:first + fit + 1]
         if len(piece) < 3:
             continue
-        centre = piece.mean(axis=0)
-        axis = np.linalg.svd(piece - centre, full_matrices=False)[2][0]
-        if axis @ (piece[-1] - piece[0]) < 0:
-            axis = -axis
+        _, axis = _fitted_line(piece)
         # the parent's points behind the clear start, by their distance from the extended axis
         relative = parent - child[first]
         along = relative @ axis
@@ -571,7 +576,8 @@ def _straight_tips(arrays: _Arrays, settings: TreeSettings) -> int:
             points = arrays.points[span][::-1] if not at_start else arrays.points[span]
             radius = arrays.radius[span][::-1] if not at_start else arrays.radius[span]
             arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-            cap = settings.tip_straight_radii * float(np.median(radius[arc <= fit]))
+            tip_radius = float(np.median(radius[arc <= fit]))
+            cap = settings.tip_straight_radii * tip_radius
             line = np.flatnonzero((arc >= cap) & (arc <= cap + fit))
             near = np.flatnonzero(arc < cap)
             if len(line) < 3 or len(near) == 0 or (b, 0) in has_child_at and at_start:
@@ -579,15 +585,13 @@ def _straight_tips(arrays: _Arrays, settings: TreeSettings) -> int:
             if not at_start and any(c <= len(points) - 1 - near[-1] for c in
                                     [arrays.parent_points[k] for k in range(1, len(arrays.counts)) if arrays.parents[k] == b]):
                 continue  # a child leaves from the stretch: it stays
-            centre = points[line].mean(axis=0)
-            axis = np.linalg.svd(points[line] - centre, full_matrices=False)[2][0]
-            if axis @ (points[line[0]] - points[line[-1]]) < 0:
-                axis = -axis  # towards the tip
+            centre, away = _fitted_line(points[line])
+            axis = -away  # towards the tip
+            off = points[0] - centre
+            if np.linalg.norm(off - (off @ axis) * axis) <= settings.tip_hook_radii * tip_radius:
+                continue  # the tip lies on the line already (within the tolerance): no hook
             anchor = centre + ((points[line[0]] - centre) @ axis) * axis
             straight = anchor + (arc[line[0]] - arc[near])[:, None] * axis
-            off = points[0] - centre
-            if np.linalg.norm(off - (off @ axis) * axis) <= settings.tip_hook_radii * cap / settings.tip_straight_radii:
-                continue  # the tip lies on the line already (within the tolerance): no hook
             if at_start:
                 arrays.points[int(arrays.starts[b]) + near] = straight
             else:
