@@ -257,3 +257,51 @@ def test_a_tip_whose_cap_lies_past_an_image_edge_stays_and_one_off_the_mask_is_c
     shorter[:, 80:] = 0.0
     move = _tip_move(np.array([3.5, 0.0, 0.0]), outward, radius, [projection], [shorter], 3.0, 0.1)
     assert move == pytest.approx(-1.5, abs=0.11)
+
+
+def _hooked(points: np.ndarray, hook_mm: float, at_start: bool) -> np.ndarray:
+    """A straight polyline whose last (or first) 1.4 mm bend off its line, up to ``hook_mm`` at the tip."""
+    points = points.copy()
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    from_tip = arc if at_start else arc[-1] - arc
+    bend = np.clip(1.0 - from_tip / 1.4, 0.0, None) * hook_mm
+    points[:, 2] += bend
+    return points
+
+
+@pytest.mark.parametrize("child_at", ["before", "inside"])
+def test_straight_tips_lays_a_hooked_end_on_its_line_unless_a_child_leaves_from_the_stretch(child_at):
+    # a trunk along x (radius 1 mm: the last 1.5 mm are laid on the line of the 3 mm before them)
+    # whose end and start hook 0.6 mm off in z; a child leaves 10 mm before the end ("before":
+    # the end is straightened, onto the line y = z = 0, each point as far along it from the fitted
+    # stretch as it was along the curve) or 1 mm before it ("inside":
+    # the end stays); the root's start likewise, with a child 1 mm after it ("inside") or none
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _straight_tips
+
+    line = _line((0, 0, 0), (30, 0, 0))
+    trunk = _hooked(_hooked(line, 0.6, at_start=False), 0.6, at_start=True)
+    stub = 10.0 if child_at == "before" else 1.0
+    at = len(line) - 1 - int(round(stub / 0.5))
+    children = [Branch(_line(line[at], line[at] + (0, 10, 0)), 0.8, parent=0, parent_point=at, name="end side")]
+    if child_at == "inside":
+        children.append(Branch(_line(line[2], line[2] + (0, -10, 0)), 0.8, parent=0, parent_point=2, name="start side"))
+    arrays = _Arrays.of(VesselTree((Branch(trunk, 1.0, name="trunk"), *children)))
+    before = arrays.points.copy()
+    count = _straight_tips(arrays, TREE_SETTINGS)
+    moved = arrays.points[arrays.span(0)]
+    near_end = line[:, 0] > 30 - 1.5
+    near_start = line[:, 0] < 1.5
+    if child_at == "before":
+        assert count == 2
+        tips = near_end | near_start
+        np.testing.assert_allclose(moved[tips][:, 1:], 0.0, atol=1e-9)
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(trunk, axis=0), axis=1))])
+        ends = [(near_end, len(line) - 1 - np.flatnonzero(near_end).size, 1.0), (near_start, np.flatnonzero(near_start).size, -1.0)]
+        for stretch, first_kept, sign in ends:
+            expected = line[first_kept, 0] + sign * np.abs(along[stretch] - along[first_kept])
+            np.testing.assert_allclose(moved[stretch][:, 0], expected, atol=1e-9)
+    else:
+        assert count == 0
+        np.testing.assert_array_equal(arrays.points, before)
+    np.testing.assert_array_equal(moved[~(near_end | near_start)], trunk[~(near_end | near_start)])
+    np.testing.assert_array_equal(arrays.points[arrays.span(1)], before[arrays.span(1)])

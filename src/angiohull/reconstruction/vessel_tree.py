@@ -565,15 +565,14 @@ def _junction_on_axes(arrays: _Arrays, settings: TreeSettings) -> tuple[_Arrays,
 def _straight_tips(arrays: _Arrays, settings: TreeSettings) -> int:
     """Each tip's last ``tip_straight_radii`` radii laid on the line of the ``junction_fit_mm`` of
     its branch before them (module notes, step 6), in place; returns how many tips were straightened."""
-    has_child_at = {(arrays.parents[b], arrays.parent_points[b]) for b in range(1, len(arrays.counts))}
+    children_at = [[int(arrays.parent_points[k]) for k in range(1, len(arrays.counts)) if arrays.parents[k] == b]
+                   for b in range(len(arrays.counts))]
     fit = settings.junction_fit_mm
     count = 0
     for b in range(len(arrays.counts)):
         span = arrays.span(b)
-        tips = [] if (b, int(arrays.counts[b]) - 1) in has_child_at else [False]
-        if b == 0:
-            tips.append(True)  # the root's start
-        for at_start in tips:
+        last = int(arrays.counts[b]) - 1
+        for at_start in ([False, True] if b == 0 else [False]):  # every branch's end; the root's start too
             points = arrays.points[span][::-1] if not at_start else arrays.points[span]
             radius = arrays.radius[span][::-1] if not at_start else arrays.radius[span]
             arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
@@ -581,11 +580,12 @@ def _straight_tips(arrays: _Arrays, settings: TreeSettings) -> int:
             cap = settings.tip_straight_radii * tip_radius
             line = np.flatnonzero((arc >= cap) & (arc <= cap + fit))
             near = np.flatnonzero(arc < cap)
-            if len(line) < 3 or len(near) == 0 or (b, 0) in has_child_at and at_start:
+            if len(line) < 3 or len(near) == 0:
                 continue
-            if not at_start and any(c <= len(points) - 1 - near[-1] for c in
-                                    [arrays.parent_points[k] for k in range(1, len(arrays.counts)) if arrays.parents[k] == b]):
-                continue  # a child leaves from the stretch: it stays
+            # the stretch moved is the points near[0] .. near[-1] from this tip: where a child
+            # leaves from one of them, the stretch stays as it is
+            if any((c <= near[-1]) if at_start else (c >= last - near[-1]) for c in children_at[b]):
+                continue
             centre, away = _fitted_line(points[line])
             axis = -away  # towards the tip
             off = points[0] - centre
