@@ -269,39 +269,44 @@ def _hooked(points: np.ndarray, hook_mm: float, at_start: bool) -> np.ndarray:
     return points
 
 
-@pytest.mark.parametrize("child_at", ["before", "inside"])
-def test_straight_tips_lays_a_hooked_end_on_its_line_unless_a_child_leaves_from_the_stretch(child_at):
-    # a trunk along x (radius 1 mm: the last 1.5 mm are laid on the line of the 3 mm before them)
-    # whose end and start hook 0.6 mm off in z; a child leaves 10 mm before the end ("before":
-    # the end is straightened, onto the line y = z = 0, each point as far along it from the fitted
-    # stretch as it was along the curve) or 1 mm before it ("inside":
-    # the end stays); the root's start likewise, with a child 1 mm after it ("inside") or none
+@pytest.mark.parametrize("start_child", [False, True])
+def test_straight_tips_lays_hooked_leaf_ends_and_the_roots_start_on_their_lines(start_child):
+    # a trunk along x (radius 1 mm: a tip's last 1.5 mm are laid on the line of the 3 mm before
+    # them) hooked 0.6 mm off in z at both ends, and a side branch along y from 10 mm before its
+    # end, hooked at its own end: the side branch's end and the root's start are straightened
+    # (onto the line, each point as far along it from the fitted stretch as it was along the
+    # curve); the trunk's end, which has a child, stays; with a second child 1 mm after the
+    # root's start (start_child), the start stays too
     from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _straight_tips
 
     line = _line((0, 0, 0), (30, 0, 0))
     trunk = _hooked(_hooked(line, 0.6, at_start=False), 0.6, at_start=True)
-    stub = 10.0 if child_at == "before" else 1.0
-    at = len(line) - 1 - int(round(stub / 0.5))
-    children = [Branch(_line(line[at], line[at] + (0, 10, 0)), 0.8, parent=0, parent_point=at, name="end side")]
-    if child_at == "inside":
-        children.append(Branch(_line(line[2], line[2] + (0, -10, 0)), 0.8, parent=0, parent_point=2, name="start side"))
-    arrays = _Arrays.of(VesselTree((Branch(trunk, 1.0, name="trunk"), *children)))
+    at = len(line) - 1 - 20
+    side_line = _line(line[at], line[at] + (0, 12, 0))
+    side = _hooked(side_line, 0.6, at_start=False)
+    branches = [Branch(trunk, 1.0, name="trunk"), Branch(side, 1.0, parent=0, parent_point=at, name="side")]
+    if start_child:
+        branches.append(Branch(_line(line[2], line[2] + (0, -10, 0)), 0.8, parent=0, parent_point=2, name="start side"))
+    arrays = _Arrays.of(VesselTree(tuple(branches)))
     before = arrays.points.copy()
     count = _straight_tips(arrays, TREE_SETTINGS)
-    moved = arrays.points[arrays.span(0)]
-    near_end = line[:, 0] > 30 - 1.5
+    assert count == (1 if start_child else 2)
+
+    def check(moved, original, straight, stretch, first_kept, sign, axis):
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(original, axis=0), axis=1))])
+        expected = straight[first_kept] + sign * np.abs(along[stretch] - along[first_kept])[:, None] * axis
+        np.testing.assert_allclose(moved[stretch], expected, atol=1e-9)
+        np.testing.assert_array_equal(moved[~stretch], original[~stretch])
+
     near_start = line[:, 0] < 1.5
-    if child_at == "before":
-        assert count == 2
-        tips = near_end | near_start
-        np.testing.assert_allclose(moved[tips][:, 1:], 0.0, atol=1e-9)
-        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(trunk, axis=0), axis=1))])
-        ends = [(near_end, len(line) - 1 - np.flatnonzero(near_end).size, 1.0), (near_start, np.flatnonzero(near_start).size, -1.0)]
-        for stretch, first_kept, sign in ends:
-            expected = line[first_kept, 0] + sign * np.abs(along[stretch] - along[first_kept])
-            np.testing.assert_allclose(moved[stretch][:, 0], expected, atol=1e-9)
+    trunk_now = arrays.points[arrays.span(0)]
+    if start_child:
+        np.testing.assert_array_equal(trunk_now, trunk)
     else:
-        assert count == 0
-        np.testing.assert_array_equal(arrays.points, before)
-    np.testing.assert_array_equal(moved[~(near_end | near_start)], trunk[~(near_end | near_start)])
-    np.testing.assert_array_equal(arrays.points[arrays.span(1)], before[arrays.span(1)])
+        np.testing.assert_array_equal(trunk_now[line[:, 0] > 1.5], trunk[line[:, 0] > 1.5])  # the end stays
+        check(trunk_now, trunk, line, near_start, int(near_start.sum()), -1.0, np.array([1.0, 0, 0]))
+    side_now = arrays.points[arrays.span(1)]
+    near_end = side_line[:, 1] > side_line[-1, 1] - 1.5
+    check(side_now, side, side_line, near_end, len(side_line) - 1 - int(near_end.sum()), 1.0, np.array([0, 1.0, 0]))
+    if start_child:
+        np.testing.assert_array_equal(arrays.points[arrays.span(2)], before[arrays.span(2)])  # no hook

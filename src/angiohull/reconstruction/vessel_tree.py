@@ -72,7 +72,8 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    start, at the left main's ostium, 2-3 mm to the side on 4 of 8 generated left trees). So each
    tip's last ``tip_straight_radii`` radii are first laid on the least-squares line of the
    ``junction_fit_mm`` of its branch before them, when the tip lies farther than
-   ``tip_hook_radii`` radii from that line (a tip a child leaves from stays as it is; a short
+   ``tip_hook_radii`` radii from that line (only the ends of branches without children, and the
+   root's start unless a child leaves from the stretch; a short
    trunk's line, near its junction, may tilt a start that has no hook). Then the
    skeleton may stop short of a vessel's end or overshoot it where the hull ends in
    a point. Each tip of the tree (the root's start and every branch end with no child there) moves
@@ -571,8 +572,13 @@ def _straight_tips(arrays: _Arrays, settings: TreeSettings) -> int:
     count = 0
     for b in range(len(arrays.counts)):
         span = arrays.span(b)
-        last = int(arrays.counts[b]) - 1
-        for at_start in ([False, True] if b == 0 else [False]):  # every branch's end; the root's start too
+        # the end of a branch no child leaves from, and the root's start: the end of a branch that
+        # has children stays (where the branch goes on past its last child for a few mm, the line
+        # of the 3 mm before its tip runs through the junction's swelling; straightening such ends
+        # too tilted the daughters: on 60 QCA trees the distal angles' MAE went from 4.7 to 5.1
+        # degrees)
+        ends = [] if children_at[b] else [False]
+        for at_start in ends + ([True] if b == 0 else []):
             points = arrays.points[span][::-1] if not at_start else arrays.points[span]
             radius = arrays.radius[span][::-1] if not at_start else arrays.radius[span]
             arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
@@ -582,10 +588,8 @@ def _straight_tips(arrays: _Arrays, settings: TreeSettings) -> int:
             near = np.flatnonzero(arc < cap)
             if len(line) < 3 or len(near) == 0:
                 continue
-            # the stretch moved is the points near[0] .. near[-1] from this tip: where a child
-            # leaves from one of them, the stretch stays as it is
-            if any((c <= near[-1]) if at_start else (c >= last - near[-1]) for c in children_at[b]):
-                continue
+            if at_start and any(c <= near[-1] for c in children_at[b]):
+                continue  # a child leaves from the stretch that would move: it stays as it is
             centre, away = _fitted_line(points[line])
             axis = -away  # towards the tip
             off = points[0] - centre
