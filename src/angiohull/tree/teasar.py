@@ -103,19 +103,21 @@ def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5, ball_voxels:
         marked[(np.unique(key[path])[:, None] + around[None, :]).ravel()] = True
         return todo[marked[key[todo]]]
 
-    def cover(path: np.ndarray) -> None:
-        """Mark the voxels within reach of a voxel of ``path`` (nearest path voxel decides)."""
+    def cover(path: np.ndarray, uncovered: np.ndarray) -> None:
+        """Mark the voxels of ``uncovered`` within reach of a voxel of ``path`` (nearest path voxel
+        decides), and the path's own."""
         largest = float(reach[path].max())
-        todo = near(path, np.flatnonzero(~covered), largest)  # the others are out of reach
+        todo = near(path, uncovered, largest)  # the others are out of reach
         gap, nearest = cKDTree(voxels[path]).query(voxels[todo], distance_upper_bound=largest)
         hit = np.isfinite(gap)
         hit[hit] = gap[hit] <= reach[path][nearest[hit]]
         covered[todo[hit]] = True
         covered[path] = True
 
-    cover(roots)
+    cover(roots, np.arange(n))
+    uncovered = np.flatnonzero(~covered)
     while True:
-        uncovered = np.flatnonzero(~covered)
+        uncovered = uncovered[~covered[uncovered]]  # ascending, as np.flatnonzero(~covered)
         if len(uncovered) == 0:
             break
         target = int(uncovered[np.argmax(distance[uncovered])])
@@ -127,7 +129,7 @@ def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5, ball_voxels:
             path.append(step)
         path = np.array(path)
         on_path[path] = True
-        cover(path)
+        cover(path, uncovered)
     chosen = np.flatnonzero(on_path)
     skeleton[tuple(voxels[chosen].T)] = True
     # np.argwhere order is the voxels' C order, as chosen (voxels came from np.argwhere too)
