@@ -183,6 +183,7 @@ def main() -> None:
         rows = [r for chunk in pool.map(_run, tasks) for r in chunk]
         peer_rows = [r for chunk in pool.map(_peer, studies) for r in chunk]
     rows = rows if rows else []
+    load = os.getloadavg()[0]  # what else ran on the machine as the time section began
     timing = _timing(args.repeats)
     elapsed = time.perf_counter() - start
     command = "--timing-only" if args.timing_only else f"--trees {args.trees} --workers {args.workers}"
@@ -220,7 +221,8 @@ def main() -> None:
     stage_names = list(timing[0]["stages_s"])
     lines += ["## Time of the tree method, two 512 x 512 views", "",
               f"One process, medians of {args.repeats} runs per case after a first run (imports done); seconds. "
-              "The machine was shared with other work while this ran, so these are upper bounds.", "",
+              f"Load average as it began: {load:.2f} on {os.cpu_count()} cores (above 1, other work shared the machine "
+              "and these are upper bounds).", "",
               "| tree | total | " + " | ".join(stage_names) + " |", "|---|---|" + "---|" * len(stage_names)]
     for t in timing:
         lines.append(f"| {t['kind']} seed {t['seed']} | **{t['total_s']:.2f}** | "
