@@ -199,9 +199,9 @@ def test_nifti_reads_back_with_nibabel(tmp_path, lumen):
     np.testing.assert_array_equal(LPS_TO_RAS, np.diag([-1.0, -1.0, 1.0, 1.0]))
 
 
-def test_nifti_is_what_nibabel_save_writes(tmp_path, lumen, monkeypatch):
+def test_nifti_is_what_nibabel_save_writes(tmp_path, lumen):
     """Byte for byte nibabel.save of the whole label map in NIfTI order, whether the labels fit
-    uint8 or not, empty or not, however many slices a run of the stream holds."""
+    uint8 or not, empty or not."""
     from angiohull.tree.solid import LumenVolume
 
     rng = np.random.default_rng(9)
@@ -209,12 +209,10 @@ def test_nifti_is_what_nibabel_save_writes(tmp_path, lumen, monkeypatch):
     many.reshape(-1)[rng.choice(many.size, 500, replace=False)] = rng.integers(1, 700, 500)
     cases = [lumen, LumenVolume(many, np.array([1.5, -2.0, 3.25]), 0.3),
              LumenVolume(np.zeros((4, 5, 6), dtype=np.uint16), np.zeros(3), 1.0)]
-    for chunk_bytes in (exports._NIFTI_CHUNK_BYTES, 1000, 1):
-        monkeypatch.setattr(exports, "_NIFTI_CHUNK_BYTES", chunk_bytes)
-        for case in cases:
-            exports._write_nifti(tmp_path / "ours.nii.gz", case)
-            exports._write_nifti_whole(tmp_path / "whole.nii.gz", case)
-            assert (tmp_path / "ours.nii.gz").read_bytes() == (tmp_path / "whole.nii.gz").read_bytes()
+    for case in cases:
+        exports._write_nifti(tmp_path / "ours.nii.gz", case)
+        exports._write_nifti_whole(tmp_path / "whole.nii.gz", case)
+        assert (tmp_path / "ours.nii.gz").read_bytes() == (tmp_path / "whole.nii.gz").read_bytes()
 
 
 # -- the set ------------------------------------------------------------------------------------
@@ -270,7 +268,7 @@ def test_the_label_map_written_beside_the_others_fails_as_cleanly(tmp_path, monk
     # another file waits for it, and either way nothing is left behind
     import threading
 
-    def slow_full_disk(path, lumen):
+    def slow_full_disk(path, lumen, prepared=None):
         Path(path).write_bytes(b"partial")
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
 
@@ -281,7 +279,7 @@ def test_the_label_map_written_beside_the_others_fails_as_cleanly(tmp_path, monk
 
     started, finished = threading.Event(), threading.Event()
 
-    def late_nifti(path, lumen):
+    def late_nifti(path, lumen, prepared=None):
         started.set()
         threading.Event().wait(0.3)
         Path(path).write_bytes(b"late")

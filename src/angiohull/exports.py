@@ -319,9 +319,6 @@ def _labelled(labels: np.ndarray) -> np.ndarray:
     return candidates[flat[candidates] != 0]
 
 
-_NIFTI_CHUNK_BYTES = 1 << 20  # the label map is handed to the compressor this many bytes at a time, about
-
-
 def _label_dtype(values: np.ndarray, labels: np.ndarray) -> np.dtype:
     """uint8 when every label fits (half the bytes to compress), else the labels' own dtype."""
     return np.dtype(np.uint8) if len(values) == 0 or values.max() <= np.iinfo(np.uint8).max else labels.dtype
@@ -329,39 +326,13 @@ def _label_dtype(values: np.ndarray, labels: np.ndarray) -> np.dtype:
 
 def _in_nifti_order(labels: np.ndarray) -> np.ndarray:
     """The labels in NIfTI's order (first index fastest: Fortran order) and data type
-    (:func:`_label_dtype`), as one array (the reference of :func:`_nifti_chunks`)."""
+    (:func:`_label_dtype`), as one array, built from the few labelled voxels into a fresh zeroed
+    one (no copy of the whole grid)."""
     flat = _labelled(labels)
     values = labels.reshape(-1)[flat]
     out = np.zeros(labels.size, dtype=_label_dtype(values, labels))
     out[np.ravel_multi_index(np.unravel_index(flat, labels.shape), labels.shape, order="F")] = values
     return out.reshape(labels.shape, order="F")
-
-
-def _nifti_chunks(labels: np.ndarray, dtype: np.dtype, flat: np.ndarray, values: np.ndarray):
-    """The bytes of the labels in NIfTI's order (:func:`_in_nifti_order`), a run of whole slices
-    (last index) at a time, built from the few labelled voxels (flat C-order indices ``flat``,
-    their ``values``) in one reused buffer: no copy of the whole grid, which is mostly empty (a
-    grid of tens of millions of voxels costs its own size in fresh memory and page faults)."""
-    nx, ny, nz = labels.shape
-    per_slice = nx * ny
-    slices = max(1, min(nz, _NIFTI_CHUNK_BYTES // max(per_slice * dtype.itemsize, 1)))
-    x, rest = np.divmod(flat, ny * nz)
-    y, z = np.divmod(rest, nz)
-    order = np.argsort(z.astype(np.uint16) if nz <= np.iinfo(np.uint16).max else z, kind="stable")  # radix sort
-    z_sorted = z[order]
-    within = (x + nx * y)[order] + per_slice * (z_sorted % slices)  # index in its run of slices
-    values = values[order].astype(dtype)
-    cuts = np.searchsorted(z_sorted, np.arange(0, nz + slices, slices)).tolist()
-    buffer = np.zeros(per_slice * slices, dtype=dtype)
-    for run, first in enumerate(range(0, nz, slices)):
-        part = buffer[:per_slice * (min(first + slices, nz) - first)]
-        begin, end = cuts[run], cuts[run + 1]
-        if begin < end:
-            part[within[begin:end]] = values[begin:end]
-            yield memoryview(part).cast("B")
-            part[within[begin:end]] = 0
-        else:
-            yield memoryview(part).cast("B")
 
 
 def _nifti_image(lumen: LumenVolume, data: np.ndarray) -> Any:
@@ -388,32 +359,36 @@ def _write_nifti_whole(path: Path, lumen: LumenVolume) -> None:
     nibabel.save(_nifti_image(lumen, _in_nifti_order(_lumen_labels(lumen))), str(path))
 
 
-def _write_nifti(path: Path, lumen: LumenVolume) -> None:
-    """The file ``nibabel.save`` writes (:func:`_write_nifti_whole`, byte for byte; a test holds
-    them equal), written as ``Nifti1Image.to_file_map`` does it: the header, updated from the
-    image and given the slope and intercept of nibabel's array writer (none: the labels are
-    written in their own data type), then the data, through nibabel's opener (gzip at nibabel's
-    level, no time stamp) but in runs of slices (:func:`_nifti_chunks`): the compressed stream
-    does not depend on how its input is cut."""
+def _nifti_prepared(lumen: LumenVolume) -> tuple[Any, np.ndarray]:
+    """The header and the data of the label map's file (:func:`_write_nifti`): the header updated
+    from the image and given the slope and intercept of nibabel's array writer (none: the labels
+    are written in their own data type), the data :func:`_in_nifti_order` as one flat array."""
     from nibabel.arraywriters import get_slope_inter, make_array_writer
+
+    data = _in_nifti_order(_lumen_labels(lumen))
+    image = _nifti_image(lumen, data)
+    image.update_header()
+    header = image.header
+    stand_in = np.broadcast_to(np.zeros((), dtype=data.dtype), data.shape)  # the writer need not scan the data
+    writer = make_array_writer(stand_in, header.get_data_dtype(), header.has_data_slope, header.has_data_intercept)
+    header.set_slope_inter(*get_slope_inter(writer))
+    return header, data.ravel(order="F")  # a view: the array is in Fortran order
+
+
+def _write_nifti(path: Path, lumen: LumenVolume, prepared: tuple[Any, np.ndarray] | None = None) -> None:
+    """The file ``nibabel.save`` writes (:func:`_write_nifti_whole`, byte for byte; a test holds
+    them equal), written as ``Nifti1Image.to_file_map`` does it: the header, then the data
+    (:func:`_nifti_prepared`, or ``prepared`` when given), through nibabel's opener (gzip at
+    nibabel's level, no time stamp), in one write: zlib compresses it in one call, which lets
+    other threads hold Python's GIL all the while."""
     from nibabel.openers import ImageOpener
     from nibabel.volumeutils import seek_tell
 
-    labels = _lumen_labels(lumen)
-    flat = _labelled(labels)
-    values = labels.reshape(-1)[flat]
-    dtype = _label_dtype(values, labels)
-    stand_in = np.broadcast_to(np.zeros((), dtype=dtype), labels.shape)  # the labels' shape and type, no memory
-    image = _nifti_image(lumen, stand_in)
-    image.update_header()
-    header = image.header
-    writer = make_array_writer(stand_in, header.get_data_dtype(), header.has_data_slope, header.has_data_intercept)
-    header.set_slope_inter(*get_slope_inter(writer))
+    header, data = _nifti_prepared(lumen) if prepared is None else prepared
     with ImageOpener(str(path), "wb") as handle:
         header.write_to(handle)
         seek_tell(handle, header.get_data_offset(), write0=True)
-        for chunk in _nifti_chunks(labels, dtype, flat, values):
-            handle.write(chunk)
+        handle.write(memoryview(data).cast("B"))
 
 
 # -- public writers ---------------------------------------------------------------------------
@@ -544,9 +519,9 @@ def write_tree_exports(out_dir: PathLike, tree: VesselTree, *, mesh: SurfaceMesh
     (:func:`write_mesh_stl`) when ``mesh`` is given, ``lumen.nii.gz`` (:func:`write_lumen_nifti`)
     when ``lumen`` is given. Existing files of those names are replaced.
 
-    Every file is first written under a hidden temporary name in ``out_dir`` (the label map on a
-    second thread, while the others are written: zlib lets other threads run while it
-    compresses); only when all are written are they renamed into place. If anything fails, every file this call wrote (the
+    Every file is first written under a hidden temporary name in ``out_dir`` (the label map,
+    prepared first, compressed on a second thread while the others are written: zlib lets other
+    threads run while it compresses); only when all are written are they renamed into place. If anything fails, every file this call wrote (the
     temporaries and any already renamed) and every folder it created is removed before the error
     is raised.
 
@@ -574,7 +549,8 @@ def write_tree_exports(out_dir: PathLike, tree: VesselTree, *, mesh: SurfaceMesh
         jobs.append(("mesh_stl", lambda p: _write_stl(p, checked_mesh)))
     if lumen is not None:
         _lumen_labels(lumen)
-        jobs.append(("lumen_nifti", lambda p: _write_nifti(p, lumen)))  # last: written on a second thread
+        prepared = _nifti_prepared(lumen)  # here: the second thread then only compresses and writes
+        jobs.append(("lumen_nifti", lambda p: _write_nifti(p, lumen, prepared)))  # last: written on a second thread
 
     finals = {key: out_dir / EXPORT_FILES[key] for key, _ in jobs}
     created: list[Path] = []
@@ -588,8 +564,9 @@ def write_tree_exports(out_dir: PathLike, tree: VesselTree, *, mesh: SurfaceMesh
         if lumen is not None:
             from concurrent.futures import ThreadPoolExecutor
 
-            # zlib lets other threads run while it compresses: the label map (the largest file by
-            # far) costs little more than the other four together
+            # zlib lets other threads run while it compresses the label map (the largest file by
+            # far) in one call; it still waits for Python's GIL now and then (a new output block),
+            # which VTK's writers hold while they write, so the two overlap only in part
             key, write = jobs.pop()
             current = finals[key]
             temporaries[key] = _open_temporary(current)
