@@ -751,7 +751,13 @@ def _silhouette_step(projections: Sequence[Projection], masks: Sequence[np.ndarr
     largest = largest_off_gauge_px(projections, fit.shifts_px - shifts)
     if not np.isfinite(largest) or largest > _SILHOUETTE_REACH_PX:
         return *unchanged, f"not kept: it would change a view by {largest:.2f} px"
-    final, further = _gauge(fit.shifts_px, [_jacobian(p) for p in projections], moved=_moved(shifts))
+    jacobians = [_jacobian(p) for p in projections]
+    final, further = _gauge(fit.shifts_px, jacobians, moved=_moved(shifts))
+    fewer, fewer_further = _gauge(fit.shifts_px, jacobians)
+    if len(_moved(fewer)) < len(_moved(final)):
+        # the outlines say that fewer views moved than the centrelines did (a view's error along
+        # an axis it shares with another had gone to both): the simpler correction
+        final, further = fewer, fewer_further
     rms = ", ".join(f"{r:.2f}" for r in fit.residual_rms_px)
     return final, further, f"applied: outline RMS {rms} px per view, {fit.iterations} iterations"
 
