@@ -379,8 +379,8 @@ def _write_nifti(path: Path, lumen: LumenVolume, prepared: tuple[Any, np.ndarray
     """The file ``nibabel.save`` writes (:func:`_write_nifti_whole`, byte for byte; a test holds
     them equal), written as ``Nifti1Image.to_file_map`` does it: the header, then the data
     (:func:`_nifti_prepared`, or ``prepared`` when given), through nibabel's opener (gzip at
-    nibabel's level, no time stamp), in one write: zlib compresses it in one call, which lets
-    other threads hold Python's GIL all the while."""
+    nibabel's level, no time stamp), in one write: zlib compresses it in one call, which takes
+    Python's GIL only now and then (for a new output block), so other threads run meanwhile."""
     from nibabel.openers import ImageOpener
     from nibabel.volumeutils import seek_tell
 
