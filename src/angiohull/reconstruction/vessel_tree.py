@@ -463,10 +463,6 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings) -> tuple["_Arra
     for b in range(len(arrays.counts)):
         r = arrays.radius[arrays.span(b)]
         start = int(arrays.starts[b])
-        if b == 0:
-            tips.append((float(r[:window].mean()), start))
-        if (b, len(r) - 1) not in has_child_at:
-            tips.append((float(r[-window:].mean()), start + len(r) - 1))
         mean = ndi.uniform_filter1d(r, size=min(window, len(r)), mode="nearest")
         # not where branches meet: their cross-sections merge there and the radii swell
         arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(arrays.points[arrays.span(b)], axis=0), axis=1))])
@@ -476,6 +472,16 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings) -> tuple["_Arra
         clear = np.ones(len(r), dtype=bool)
         for at in junctions:
             clear &= np.abs(arc - at) > settings.ostium_junction_mm
+        # a tip's radius: the widest mean over the window within two windows of it, where no
+        # branches meet (its first window alone is the end cap's, narrower than the vessel: a
+        # root that started at the ostium was moved to a wider point inside, 10-20 mm away)
+        ends = ([(0, slice(0, 2 * window))] if b == 0 else []) + \
+            ([(len(r) - 1, slice(max(len(r) - 2 * window, 0), len(r)))] if (b, len(r) - 1) not in has_child_at else [])
+        for at, near in ends:
+            centres = np.arange(len(r))[near]
+            inside = centres[(np.abs(centres - at) >= window // 2) & clear[near]]
+            radius = float(mean[inside].max()) if len(inside) else float(r[:window].mean() if at == 0 else r[-window:].mean())
+            tips.append((radius, start + at))
         if clear.any():
             k = int(np.flatnonzero(clear)[np.argmax(mean[clear])])
             if mean[k] > inner_radius:
