@@ -67,3 +67,32 @@ def test_rooted_where_it_is_already_rooted_keeps_the_tree():
     for a, b in zip(new.branches, tree.branches):
         np.testing.assert_allclose(a.points_mm, b.points_mm)
         assert a.parent == b.parent and a.parent_point == b.parent_point
+
+
+def _trunk_with_side(radius: np.ndarray) -> VesselTree:
+    """A 40 mm trunk along x (points every 0.5 mm, ``radius`` per point) with a thin side branch
+    leaving at 20 mm."""
+    points = np.column_stack([np.arange(81) * 0.5, np.zeros(81), np.zeros(81)])
+    side = np.column_stack([np.full(21, 20.0), np.arange(21) * 0.5, np.zeros(21)])
+    return VesselTree((Branch(points, radius, name="trunk"), Branch(side, 0.8, parent=0, parent_point=40, name="side")))
+
+
+def test_a_root_whose_first_millimetres_narrow_to_an_end_cap_stays_at_the_ostium():
+    # the root's first 3 mm narrow from 2.0 to 1.2 mm (the end cap's fitted radii), the trunk is
+    # 2.0 mm wide, 2.4 mm over 9-15 mm (more than 5 mm before the side branch) and tapers to 1.0 mm
+    # past the side branch: 2.4 is 1.3 times the cap's 1.5 mm mean, but not 1.3 times the vessel's
+    # 2.0 mm, so the root stays where it starts
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _rooted_at_ostium
+
+    arc = np.arange(81) * 0.5
+    radius = np.where(arc < 3.0, 1.2 + 0.8 * arc / 3.0, np.where(arc <= 20.0, 2.0, 2.0 - (arc - 20.0) / 20.0))
+    radius = np.where((arc >= 9.0) & (arc <= 15.0), 2.4, radius)
+    arrays = _Arrays.of(_trunk_with_side(radius))
+    out, moved = _rooted_at_ostium(arrays, TREE_SETTINGS)
+    assert moved == 0.0
+    np.testing.assert_array_equal(out.points, arrays.points)
+    # a root that is thin over its first 6 mm (1.2 mm: no end cap, a thin vessel) still goes to
+    # the wide point inside
+    radius = np.where(arc < 6.5, 1.2, radius)
+    out, moved = _rooted_at_ostium(_Arrays.of(_trunk_with_side(radius)), TREE_SETTINGS)
+    assert 9.0 < moved < 15.5

@@ -46,8 +46,9 @@ views) into a :class:`~angiohull.tree.VesselTree`:
 4. **Root.** The skeleton's root is its widest tip by the voxels' depth, which the occupancy
    gives only coarsely, and the stub from the ostium to the first side branch can be short enough
    to go as a spur. Once the radii are fitted, the ostium is the tip (the root's start or a
-   branch end with no child there) whose radius averaged over its last ``ostium_window_mm`` is
-   the largest, or, where a point inside a branch is wider than that by ``ostium_inner_ratio``
+   branch end with no child there) whose radius averaged over ``ostium_window_mm`` is the
+   largest (the widest such mean within two windows of the tip, clear of junctions: the first
+   window alone is the end cap's), or, where a point inside a branch is wider than that by ``ostium_inner_ratio``
    or more (averaged over the same arc, and farther than ``ostium_junction_mm`` from where
    branches meet, as radii swell there), that point (the stub went as a spur); when it lies more than
    ``reroot_mm`` from the root's start, the tree is traced again from there
