@@ -96,3 +96,33 @@ def test_a_root_whose_first_millimetres_narrow_to_an_end_cap_stays_at_the_ostium
     radius = np.where(arc < 6.5, 1.2, radius)
     out, moved = _rooted_at_ostium(_Arrays.of(_trunk_with_side(radius)), TREE_SETTINGS)
     assert 9.0 < moved < 15.5
+
+
+def _trunk_with_side_at(radius: np.ndarray, at: int) -> VesselTree:
+    points = np.column_stack([np.arange(81) * 0.5, np.zeros(81), np.zeros(81)])
+    side = np.column_stack([np.full(21, at * 0.5), np.arange(21) * 0.5, np.zeros(21)])
+    return VesselTree((Branch(points, radius, name="trunk"), Branch(side, 0.8, parent=0, parent_point=at, name="side")))
+
+
+def test_a_tip_as_wide_as_the_roots_start_does_not_take_the_root():
+    # a trunk 2.0 mm wide all along: its far end is as wide as its start (a stub held at one
+    # radius), and the root stays where it starts; 1.2 mm wider (over 10 % more) it moves there
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _rooted_at_ostium
+
+    radius = np.full(81, 2.0)
+    assert _rooted_at_ostium(_Arrays.of(_trunk_with_side_at(radius, 40)), TREE_SETTINGS)[1] == 0.0
+    radius[-12:] = 2.3
+    assert _rooted_at_ostium(_Arrays.of(_trunk_with_side_at(radius, 40)), TREE_SETTINGS)[1] == pytest.approx(40.0)
+
+
+def test_a_roots_start_next_to_a_junction_is_measured_past_its_end_cap():
+    # a side branch 4 mm from the root's start: no point of its first 6 mm is clear of the
+    # junction, so the start's radius is the mean one window (3 mm) in, past the end cap (1.2 to
+    # 2.0 mm over the first 3 mm; 1.87 mm there), not the cap's own (1.5 mm); a 2.35 mm stretch at
+    # 12-18 mm is then not 1.3 times wider, and the root stays
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _rooted_at_ostium
+
+    arc = np.arange(81) * 0.5
+    radius = np.where(arc < 3.0, 1.2 + 0.8 * arc / 3.0, np.where(arc <= 20.0, 2.0, 2.0 - (arc - 20.0) / 20.0))
+    radius = np.where((arc >= 12.0) & (arc <= 18.0), 2.35, radius)
+    assert _rooted_at_ostium(_Arrays.of(_trunk_with_side_at(radius, 8)), TREE_SETTINGS)[1] == 0.0

@@ -131,6 +131,7 @@ class TreeSettings:
     max_unseen_share: float = 0.75  # a leaf branch no view sees over this share of its points is removed
     end_reach_radii: float = 3.0  # how far a tip may move (either way), in radii
     ostium_window_mm: float = 3.0  # the ostium is the tip whose radius, averaged over this much arc, is largest,
+    ostium_margin: float = 1.1  # ... another tip takes the root from its start only when wider by this factor
     ostium_inner_ratio: float = 1.3  # ... or a point inside a branch this many times wider still
     ostium_junction_mm: float = 5.0  # ... and farther than this from where branches meet
     reroot_mm: float = 5.0  # ... and the tree is rooted there when that lies farther than this from its root
@@ -474,20 +475,24 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings) -> tuple["_Arra
         for at in junctions:
             clear &= np.abs(arc - at) > settings.ostium_junction_mm
         # a tip's radius: the widest mean over the window within two windows of it, where no
-        # branches meet (its first window alone is the end cap's, narrower than the vessel: a
-        # root that started at the ostium was moved to a wider point inside, 10-20 mm away)
+        # branches meet, else the mean one window from it (its first window alone is the end
+        # cap's, narrower than the vessel: a root that started at the ostium was moved to a wider
+        # point inside, 10-20 mm away)
         ends = ([(0, slice(0, 2 * window))] if b == 0 else []) + \
             ([(len(r) - 1, slice(max(len(r) - 2 * window, 0), len(r)))] if (b, len(r) - 1) not in has_child_at else [])
         for at, near in ends:
             centres = np.arange(len(r))[near]
             inside = centres[(np.abs(centres - at) >= window // 2) & clear[near]]
-            radius = float(mean[inside].max()) if len(inside) else float(r[:window].mean() if at == 0 else r[-window:].mean())
-            tips.append((radius, start + at))
+            past_cap = min(window, len(r) - 1) if at == 0 else max(len(r) - 1 - window, 0)
+            tips.append((float(mean[inside].max()) if len(inside) else float(mean[past_cap]), start + at))
         if clear.any():
             k = int(np.flatnonzero(clear)[np.argmax(mean[clear])])
             if mean[k] > inner_radius:
                 inner, inner_radius = start + k, float(mean[k])
     tip_radius, best = max(tips)
+    start_radius = tips[0][0]  # the root's start (its entry comes first)
+    if best != 0 and tip_radius <= settings.ostium_margin * start_radius:
+        tip_radius, best = start_radius, 0  # not clearly wider than where the root starts: it stays
     if inner_radius > settings.ostium_inner_ratio * tip_radius:
         best = inner  # the stub to the ostium went as a spur: the ostium is inside a branch
     distance = float(np.linalg.norm(arrays.points[best] - arrays.points[0]))
