@@ -47,8 +47,9 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    gives only coarsely, and the stub from the ostium to the first side branch can be short enough
    to go as a spur. Once the radii are fitted, the ostium is the tip (the root's start or a
    branch end with no child there) whose radius averaged over ``ostium_window_mm`` is the
-   largest (the widest such mean within two windows of the tip, clear of junctions: the first
-   window alone is the end cap's), or, where a point inside a branch is wider than that by ``ostium_inner_ratio``
+   largest (the widest such mean within two windows of the tip, clear of junctions, else the
+   mean one window in: the first window alone is the end cap's; a tip only as wide as the root's
+   start leaves the root where it is), or, where a point inside a branch is wider than that by ``ostium_inner_ratio``
    or more (averaged over the same arc, and farther than ``ostium_junction_mm`` from where
    branches meet, as radii swell there), that point (the stub went as a spur); when it lies more than
    ``reroot_mm`` from the root's start, the tree is traced again from there
@@ -131,7 +132,6 @@ class TreeSettings:
     max_unseen_share: float = 0.75  # a leaf branch no view sees over this share of its points is removed
     end_reach_radii: float = 3.0  # how far a tip may move (either way), in radii
     ostium_window_mm: float = 3.0  # the ostium is the tip whose radius, averaged over this much arc, is largest,
-    ostium_margin: float = 1.1  # ... another tip takes the root from its start only when wider by this factor
     ostium_inner_ratio: float = 1.3  # ... or a point inside a branch this many times wider still
     ostium_junction_mm: float = 5.0  # ... and farther than this from where branches meet
     reroot_mm: float = 5.0  # ... and the tree is rooted there when that lies farther than this from its root
@@ -491,8 +491,8 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings) -> tuple["_Arra
                 inner, inner_radius = start + k, float(mean[k])
     tip_radius, best = max(tips)
     start_radius = tips[0][0]  # the root's start (its entry comes first)
-    if best != 0 and tip_radius <= settings.ostium_margin * start_radius:
-        tip_radius, best = start_radius, 0  # not clearly wider than where the root starts: it stays
+    if best != 0 and tip_radius <= start_radius:
+        tip_radius, best = start_radius, 0  # as wide as where the root starts (a stub held at one radius): it stays
     if inner_radius > settings.ostium_inner_ratio * tip_radius:
         best = inner  # the stub to the ostium went as a spur: the ostium is inside a branch
     distance = float(np.linalg.norm(arrays.points[best] - arrays.points[0]))
