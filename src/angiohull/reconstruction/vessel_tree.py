@@ -193,6 +193,13 @@ class _Arrays:
     def span(self, b: int) -> slice:
         return slice(int(self.starts[b]), int(self.starts[b] + self.counts[b]))
 
+    def child_points(self) -> list[list[int]]:
+        """Per branch, the indices of its points that its children leave from (children in order)."""
+        out: list[list[int]] = [[] for _ in range(len(self.counts))]
+        for c in range(1, len(self.counts)):
+            out[self.parents[c]].append(int(self.parent_points[c]))
+        return out
+
     def anchor(self, b: int) -> int | None:
         """Flat index of the parent point of branch b."""
         parent = self.parents[b]
@@ -459,7 +466,7 @@ def _tip_move(end: np.ndarray, outward: np.ndarray, radius: float, projections, 
 def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings) -> tuple["_Arrays", float]:
     """The tree rooted at its ostium (module notes, step 4), and how far the root moved (mm)."""
     window = max(2, int(round(settings.ostium_window_mm / settings.point_step_mm)))
-    has_child_at = {(arrays.parents[b], arrays.parent_points[b]) for b in range(1, len(arrays.counts))}
+    child_points = arrays.child_points()
     tips: list[tuple[float, int]] = []  # (mean radius over the window from the tip, flat index)
     inner, inner_radius = 0, -np.inf
     for b in range(len(arrays.counts)):
@@ -468,7 +475,7 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings) -> tuple["_Arra
         mean = ndi.uniform_filter1d(r, size=min(window, len(r)), mode="nearest")
         # not where branches meet: their cross-sections merge there and the radii swell
         arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(arrays.points[arrays.span(b)], axis=0), axis=1))])
-        junctions = [arc[arrays.parent_points[c]] for c in range(1, len(arrays.counts)) if arrays.parents[c] == b]
+        junctions = [arc[p] for p in child_points[b]]
         if b > 0:
             junctions.append(0.0)
         clear = np.ones(len(r), dtype=bool)
@@ -479,7 +486,7 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings) -> tuple["_Arra
         # cap's, narrower than the vessel: a root that started at the ostium was moved to a wider
         # point inside, 10-20 mm away)
         ends = ([(0, slice(0, 2 * window))] if b == 0 else []) + \
-            ([(len(r) - 1, slice(max(len(r) - 2 * window, 0), len(r)))] if (b, len(r) - 1) not in has_child_at else [])
+            ([(len(r) - 1, slice(max(len(r) - 2 * window, 0), len(r)))] if len(r) - 1 not in child_points[b] else [])
         for at, near in ends:
             centres = np.arange(len(r))[near]
             inside = centres[(np.abs(centres - at) >= window // 2) & clear[near]]
@@ -578,8 +585,7 @@ def _junction_on_axes(arrays: _Arrays, settings: TreeSettings) -> tuple[_Arrays,
 def _straight_tips(arrays: _Arrays, settings: TreeSettings) -> int:
     """Each tip's last ``tip_straight_radii`` radii laid on the line of the ``junction_fit_mm`` of
     its branch before them (module notes, step 6), in place; returns how many tips were straightened."""
-    children_at = [[int(arrays.parent_points[k]) for k in range(1, len(arrays.counts)) if arrays.parents[k] == b]
-                   for b in range(len(arrays.counts))]
+    children_at = arrays.child_points()
     fit = settings.junction_fit_mm
     count = 0
     for b in range(len(arrays.counts)):

@@ -342,7 +342,7 @@ def _blocked(tree: VesselTree, step_mm: float, *, mesh: bool, labels: bool) -> t
             window = label_volume[tuple(slice(a, b) for a, b in zip(start, stop))]
             np.copyto(window, owner, where=distance <= 0)
         if mesh and np.any(np.asarray(distance.shape) >= 2) and distance.min() <= 0 < distance.max():
-            return start, distance, distance < surface_level
+            return distance, distance < surface_level
         return None
 
     vertices, faces, count = [], [], 0
@@ -350,7 +350,7 @@ def _blocked(tree: VesselTree, step_mm: float, *, mesh: bool, labels: bool) -> t
         ready = block(start, members)
         if ready is None:
             continue
-        start, distance, inside_band = ready
+        distance, inside_band = ready
         try:
             # "descent" (the default): wound with outward normals for a distance that grows outward
             v, f, _, _ = marching_cubes(distance, 0.0, mask=inside_band, allow_degenerate=False,
