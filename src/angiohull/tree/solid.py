@@ -33,8 +33,15 @@ from .model import VesselTree
 __all__ = ["SurfaceMesh", "LumenVolume", "signed_distance_mm", "contains", "default_step_mm", "surface_mesh",
            "lumen_labels", "surface_and_labels", "MAX_GRID_VOXELS"]
 
-MAX_GRID_VOXELS = 30_000_000
-"""Largest grid :func:`surface_mesh` and :func:`lumen_labels` choose by default (120 MB of float32)."""
+MAX_GRID_VOXELS = 20_000_000
+"""Largest grid :func:`surface_mesh` and :func:`lumen_labels` choose by default (its bounding box;
+80 MB as float32, computed block by block). It bounds the time of a large tree with thin vessels:
+on the largest of 60 generated trees (an RCA in a 63 x 56 x 55 mm box, 5th-percentile radius
+0.30 mm) it sets the step to 0.212 mm instead of 0.185 mm at 30 M voxels, and the mesh's vertices
+lie 1.1 um (mean) and at most 61 um from the exact union (0.9 and 45 um at 0.185 mm), its volume
+0.13 % smaller, while mesh, labels and exports take 0.15 s instead of 0.23 s. At any step below
+sqrt(4/3) times the smallest radius every vessel keeps samples inside it; 3 of those 60 trees
+reach the bound (measured 2026-12-02)."""
 _MAX_STEP_MM = 0.3  # default grid step at most this (marching cubes loses about 1 % of a 1.5 mm tube's volume)
 _BAND_STEPS = 2.0  # the distance is exact within this many grid steps of the surface (>= sqrt(3): every corner of a cube the surface crosses)
 
