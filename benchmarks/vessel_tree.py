@@ -289,11 +289,13 @@ def _generated_section(rows: list[dict], trees: int) -> list[str]:
     return lines
 
 
-def _timing_section(rows: list[dict], imports_s: float, repeats: int) -> list[str]:
+def _timing_section(rows: list[dict], imports_s: float, repeats: int, load: float) -> list[str]:
     lines = ["## Time added to a 3-view K = 256 (refined) reconstruction", "",
              f"One process, medians of {repeats} runs per case after a first run (imports done). Tree: skeleton, "
              "graph, fit to the views, ends (`timings_s['tree']`); mesh and labels: one distance grid, marching "
-             "cubes, label volume; exports: the five files.", "",
+             "cubes, label volume; exports: the five files. Load average as the timing began: "
+             f"{load:.2f} on {os.cpu_count()} cores (above 1, other work shared the machine; the refined "
+             "reconstruction's own time, in the table, shows how fast the machine ran).", "",
              "| case | reconstruction s | tree s | mesh + labels s | exports s | added s | branches | points | faces |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -388,6 +390,7 @@ def main() -> None:
         generated = [row for rows in pool.map(_generated, tasks) for row in rows]
         xcat_rows = list(pool.map(_xcat, xcat))
         peer_rows = [row for rows in pool.map(_peer, peer) for row in rows]
+    load = os.getloadavg()[0]  # what else ran on the machine as the timing began
     timing = [_timing((kind, i, args.repeats)) for kind in ("rca", "left") for i in range(args.timing_cases)]
     imports_s = _import_cost() if timing else None
     lines = ["# Results: the vessel tree of a reconstruction (issue 20)", "",
@@ -398,7 +401,7 @@ def main() -> None:
     if generated:
         lines += _generated_section(generated, args.trees) + [""]
     if timing:
-        lines += _timing_section(timing, imports_s, args.repeats) + [""]
+        lines += _timing_section(timing, imports_s, args.repeats, load) + [""]
     if xcat_rows:
         lines += _xcat_section(xcat_rows, _xcat_truth_offsets()) + [""]
     if peer_rows:
@@ -407,7 +410,8 @@ def main() -> None:
     print(text)
     if args.output is not None:
         args.output.write_text(text, encoding="utf-8")
-        raw = {"generated": generated, "timing": timing, "imports_s": imports_s, "xcat": xcat_rows, "peer": peer_rows}
+        raw = {"generated": generated, "timing": timing, "imports_s": imports_s, "timing_load_average": load,
+               "xcat": xcat_rows, "peer": peer_rows}
         args.output.with_suffix(".json").write_text(json.dumps(raw, indent=1, default=float) + "\n", encoding="utf-8")
 
 
