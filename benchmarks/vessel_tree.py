@@ -8,8 +8,8 @@ Runs, with the same defaults for every case:
   tree, and Dice3D;
 * the time that building the tree, its mesh and label volume and writing the five exports add to
   a 3-view K = 256 (refined) reconstruction, in one process on an otherwise idle machine (medians
-  of ``--repeats`` runs per case, after a first run that imports the libraries; the import cost is
-  measured apart, in a fresh interpreter);
+  of ``--repeats`` runs per case, the cases interleaved, after a first round that imports the
+  libraries; the import cost is measured apart, in a fresh interpreter);
 * ``../shared/data/xcat-single-vessel`` (when present): one vessel in 19 views, reconstructed from
   3 views 60 degrees apart and from every pair 30 degrees apart or more; its true centerline has no
   radii, so only centerline distances are scored;
@@ -97,34 +97,46 @@ def _generated(task: tuple[str, int]) -> list[dict]:
     return rows
 
 
-def _timing(task: tuple[str, int, int]) -> dict:
-    """Medians of the tree, mesh + labels and export times of one refined reconstruction."""
+def _timing(cases: list[tuple[str, int]], repeats: int) -> list[dict]:
+    """Medians of the tree, mesh + labels and export times of one refined reconstruction per case,
+    the cases interleaved (repeat by repeat, every case once), so that a slow spell of the machine
+    falls on all of them alike rather than on one case's runs."""
     from angiohull.exports import write_tree_exports
     from angiohull.reconstruction import reconstruct
     from angiohull.tree.solid import surface_and_labels
 
-    kind, index, repeats = task
-    _, case = _case(kind, index)
-    projections, masks = [v.projection for v in case.views], [v.mask for v in case.views]
-    tree_s, solid_s, export_s, rest_s = [], [], [], []
+    inputs = []
+    for kind, index in cases:
+        _, case = _case(kind, index)
+        inputs.append(([v.projection for v in case.views], [v.mask for v in case.views]))
+    times = {key: {"tree": [], "solid": [], "exports": [], "rest": []} for key in cases}
+    last = {}
     with tempfile.TemporaryDirectory() as folder:
-        for repeat in range(repeats + 1):  # the first run imports what the steps use
-            result = reconstruct(projections, masks, preset="refined", centerlines=False)
-            start = time.perf_counter()
-            mesh, lumen = surface_and_labels(result.tree)
-            middle = time.perf_counter()
-            write_tree_exports(Path(folder) / f"run{repeat}", result.tree, mesh=mesh, lumen=lumen)
-            end = time.perf_counter()
-            if repeat:
-                tree_s.append(result.timings_s["tree"])
-                solid_s.append(middle - start)
-                export_s.append(end - middle)
-                rest_s.append(result.timings_s["reconstruction"])
-    added = [a + b + c for a, b, c in zip(tree_s, solid_s, export_s)]
-    return {"kind": kind, "index": index, "tree_s": float(np.median(tree_s)), "mesh_and_lumen_s": float(np.median(solid_s)),
-            "exports_s": float(np.median(export_s)), "added_s": float(np.median(added)),
-            "reconstruction_s": float(np.median(rest_s)), "branches": result.tree.n_branches,
-            "tree_points": result.tree.n_points, "mesh_faces": int(len(mesh.faces))}
+        for repeat in range(repeats + 1):  # the first round imports what the steps use
+            for key, (projections, masks) in zip(cases, inputs):
+                result = reconstruct(projections, masks, preset="refined", centerlines=False)
+                start = time.perf_counter()
+                mesh, lumen = surface_and_labels(result.tree)
+                middle = time.perf_counter()
+                write_tree_exports(Path(folder) / f"{key[0]}{key[1]}-{repeat}", result.tree, mesh=mesh, lumen=lumen)
+                end = time.perf_counter()
+                if repeat:
+                    t = times[key]
+                    t["tree"].append(result.timings_s["tree"])
+                    t["solid"].append(middle - start)
+                    t["exports"].append(end - middle)
+                    t["rest"].append(result.timings_s["reconstruction"])
+                last[key] = (result, mesh)
+    rows = []
+    for key in cases:
+        t, (result, mesh) = times[key], last[key]
+        added = [a + b + c for a, b, c in zip(t["tree"], t["solid"], t["exports"])]
+        rows.append({"kind": key[0], "index": key[1], "tree_s": float(np.median(t["tree"])),
+                     "mesh_and_lumen_s": float(np.median(t["solid"])), "exports_s": float(np.median(t["exports"])),
+                     "added_s": float(np.median(added)), "reconstruction_s": float(np.median(t["rest"])),
+                     "branches": result.tree.n_branches, "tree_points": result.tree.n_points,
+                     "mesh_faces": int(len(mesh.faces))})
+    return rows
 
 
 def _import_cost() -> float:
@@ -291,7 +303,8 @@ def _generated_section(rows: list[dict], trees: int) -> list[str]:
 
 def _timing_section(rows: list[dict], imports_s: float, repeats: int, load: float) -> list[str]:
     lines = ["## Time added to a 3-view K = 256 (refined) reconstruction", "",
-             f"One process, medians of {repeats} runs per case after a first run (imports done). Tree: skeleton, "
+             f"One process, medians of {repeats} runs per case after a first round (imports done), the cases "
+             "interleaved (each round runs every case once). Tree: skeleton, "
              "graph, fit to the views, ends (`timings_s['tree']`); mesh and labels: one distance grid, marching "
              "cubes, label volume; exports: the five files. Load average as the timing began: "
              f"{load:.2f} on {os.cpu_count()} cores (above 1, other work shared the machine; the refined "
@@ -391,7 +404,8 @@ def main() -> None:
         xcat_rows = list(pool.map(_xcat, xcat))
         peer_rows = [row for rows in pool.map(_peer, peer) for row in rows]
     load = os.getloadavg()[0]  # what else ran on the machine as the timing began
-    timing = [_timing((kind, i, args.repeats)) for kind in ("rca", "left") for i in range(args.timing_cases)]
+    timing = _timing([(kind, i) for kind in ("rca", "left") for i in range(args.timing_cases)], args.repeats) \
+        if args.timing_cases else []
     imports_s = _import_cost() if timing else None
     lines = ["# Results: the vessel tree of a reconstruction (issue 20)", "",
              f"Produced by `{' '.join(['OPENBLAS_NUM_THREADS=1 python benchmarks/vessel_tree.py', *sys.argv[1:]])}` on {datetime.date.today().isoformat()}, commit {commit or 'unknown'}, "
