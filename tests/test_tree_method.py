@@ -93,6 +93,80 @@ def test_lattice_points_in_a_capsule_match_the_distance_formula():
     assert inside <= got and not (got & outside)
 
 
+# -- pruning the branches the rest of the tree explains --------------------------------------------
+def _with_phantoms(tail_mm: float = 0.0):
+    """The Y plus a phantom chain hanging off the trunk: a branch along the trunk's last 20 mm, 0.3 mm
+    off its axis, and its child along the second branch, 0.3 mm off (with ``tail_mm`` more beyond
+    the second branch's end, along its direction)."""
+    y = _y()
+    trunk, second = y.branches[0].points_mm, y.branches[1].points_mm
+    start = len(_line((-30, 0, 0), (0, 0, 0))) - 41  # 20 mm before the junction
+    along = trunk[start:start + 41] + np.array([0.0, 0.3, 0.0])
+    child = second[8:] + np.array([0.0, 0.0, 0.3])
+    if tail_mm:
+        direction = (second[-1] - second[0]) / np.linalg.norm(second[-1] - second[0])
+        child = np.vstack([child, _line(child[-1], child[-1] + tail_mm * direction)[1:]])
+    phantom = Branch(along, 1.3, parent=0, parent_point=start, name="phantom")
+    return VesselTree(y.branches + (phantom, Branch(child, 1.0, parent=2, parent_point=len(along) - 1,
+                                                    name="phantom child")))
+
+
+def _explained_by_brute_force(tree, projection, reach_radii):
+    """explained_shares for one view, point by point (the reference)."""
+    points, radius, owner = tree.points()
+    uv = projection.project(points)
+    rho = radius * max(projection.focal_lengths_px) / projection.depth_mm(points) + 0.5
+    out = []
+    for b in range(tree.n_branches):
+        members, todo = set(), [b]
+        while todo:
+            x = todo.pop()
+            members.add(x)
+            todo += list(tree.children(x))
+        mine = np.isin(owner, list(members))
+        covered = [np.any(np.linalg.norm(uv[~mine] - uv[k], axis=1) <= rho[~mine] + reach_radii * rho[k])
+                   for k in np.flatnonzero(mine)]
+        out.append(np.mean(covered))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("reach_radii", [0.0, 0.5, 1.0])
+def test_explained_shares_match_a_point_by_point_reference(reach_radii):
+    from angiohull.reconstruction.model import explained_shares
+
+    tree, projections = _with_phantoms(tail_mm=12.0), _views()
+    shares = explained_shares(tree, projections, reach_radii)
+    for v, projection in enumerate(projections):
+        np.testing.assert_allclose(shares[:, v], _explained_by_brute_force(tree, projection, reach_radii), atol=1e-12)
+
+
+def test_a_phantom_branch_goes_with_the_phantom_it_carries_and_the_true_tree_stays():
+    from angiohull.reconstruction.model import explained_shares, prune_explained_branches
+
+    tree, projections = _with_phantoms(), _views()
+    shares = explained_shares(tree, projections, 0.5).min(axis=1)
+    assert shares[2] > 0.9 and shares[3] > 0.9  # the phantom's subtree and its child: covered in both views
+    pruned, removed = prune_explained_branches(tree, projections, 0.9, 0.5)
+    assert removed == 2 and [b.name for b in pruned.branches] == ["trunk", "second"]
+    np.testing.assert_array_equal(pruned.branches[1].points_mm, tree.branches[1].points_mm)
+
+
+def test_a_subtree_with_pixels_nothing_else_explains_stays_whole():
+    from angiohull.reconstruction.model import explained_shares, prune_explained_branches
+
+    # the phantom child runs 12 mm past the second branch's end: in both views its last points are
+    # its own, so the phantom's subtree stays whole; the second branch, which it covers, goes
+    tree, projections = _with_phantoms(tail_mm=12.0), _views()
+    shares = explained_shares(tree, projections, 0.5).min(axis=1)
+    assert shares[1] == 1.0 and shares[2:].max() < 0.9
+    pruned, removed = prune_explained_branches(tree, projections, 0.9, 0.5)
+    assert removed == 1 and [b.name for b in pruned.branches] == ["trunk", "phantom", "phantom child"]
+    # every point of the branch that went lies in the projected tube of one that stayed, in both views
+    everything = VesselTree(pruned.branches + (Branch(tree.branches[1].points_mm, tree.branches[1].radius_mm,
+                                                      parent=0, parent_point=tree.branches[1].parent_point),))
+    assert explained_shares(everything, projections, 0.5)[3].min() == 1.0
+
+
 # -- named cases -------------------------------------------------------------------------------
 def _helix():
     t = np.linspace(0, 3 * np.pi, 300)

@@ -17,10 +17,12 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    to its matched neighbour; their lattice points form a volume.
 4. **Tree and fit**: that volume's vessel tree (:func:`..vessel_tree.hull_tree`: skeleton, graph,
    pieces joined through the visual hull, then centres and radii fitted to every view's mask,
-   ends moved to the masks' ends). Leaf branches that the rest of the tree covers (projected
-   tubes) over ``explained_share`` of their points in every view are removed, one at a time, the
-   most covered first: they add nothing any view shows (a phantom where two vessels' cones
-   cross), while a branch with pixels nothing else explains in some view stays.
+   ends moved to the masks' ends). A branch whose subtree (it and its descendants) the rest of
+   the tree covers (projected tubes overlapping by half a radius) over ``explained_share`` of its
+   points in every view is removed with its descendants, one subtree at a time, the most covered
+   first: they add nothing any view shows (a phantom where two vessels' cones cross, and the
+   phantom branches it carries), while a subtree with pixels nothing else explains in some view
+   stays.
 5. **Lumen points**: the lattice points inside the fitted tree's tubes.
 
 Arrays and projections in, points and a tree out; nothing here reads files.
@@ -58,7 +60,8 @@ class ModelSettings:
     lumen_margin_steps: float = 0.5  # lumen points: lattice points within this many lattice steps of the tubes
     spike_window_mm: float = 3.0  # a radius above spike_ratio times the median over this much arc either side ...
     spike_ratio: float = 1.25  # ... is brought down to it (a stenosis, a narrowing, is kept)
-    explained_share: float = 0.9  # a leaf branch this much of which the others cover in every view goes
+    explained_share: float = 0.9  # a branch and its descendants this much of which the others cover in every view go
+    explained_reach_radii: float = 0.5  # covered: a point's projection within the other disc's radius plus this many of its own
     claim_rounds: int = 2  # matchings again with each view's pixels claimed by the other's matching
 
 
@@ -120,45 +123,65 @@ def _without(tree: VesselTree, leaf: int) -> VesselTree:
     return VesselTree(tuple(branches))
 
 
-def explained_shares(tree: VesselTree, projections: Sequence[Projection]) -> np.ndarray:
-    """(B, V): per branch and view, the share of the branch's points whose projection lies inside
-    the projected tube (the disc of the projected radius, plus half a pixel) of a point of another
-    branch."""
+def _subtrees(tree: VesselTree) -> list[np.ndarray]:
+    """Per branch, the branches of its subtree (itself and every descendant), ascending."""
+    members = [[b] for b in range(tree.n_branches)]
+    for b in range(tree.n_branches - 1, 0, -1):  # children come after their parents
+        members[tree.branches[b].parent] += members[b]
+    return [np.sort(m) for m in members]
+
+
+def explained_shares(tree: VesselTree, projections: Sequence[Projection], reach_radii: float) -> np.ndarray:
+    """(B, V): per branch and view, the share of the points of the branch's subtree (the branch
+    and its descendants) that the rest of the tree covers there. A point's disc is its projected
+    radius plus half a pixel; the point is covered when its projection lies within the disc's
+    radius of a point outside the subtree plus ``reach_radii`` times its own (0: its centre inside
+    the other disc; 0.5: the two discs overlap by at least half its radius; 1: they touch)."""
     from scipy.spatial import cKDTree
 
     points, radius, owner = tree.points()
-    counts = np.bincount(owner, minlength=tree.n_branches)
+    subtrees = _subtrees(tree)
+    inside = [np.isin(owner, members) for members in subtrees]  # (B) per point: in the branch's subtree
+    counts = np.array([np.count_nonzero(m) for m in inside])
     out = np.zeros((tree.n_branches, len(projections)))
     for v, projection in enumerate(projections):
         uv = projection.project(points)
         rho = radius * max(projection.focal_lengths_px) / projection.depth_mm(points) + 0.5
-        pairs = cKDTree(uv).query_pairs(float(rho.max()), output_type="ndarray")
-        covered = np.zeros(len(points), dtype=bool)
-        if len(pairs):
-            i, j = pairs[:, 0], pairs[:, 1]
-            other = owner[i] != owner[j]
-            gap = np.linalg.norm(uv[i] - uv[j], axis=1)
-            covered[i[other & (gap <= rho[j])]] = True  # i lies in j's disc
-            covered[j[other & (gap <= rho[i])]] = True
-        out[:, v] = np.bincount(owner, weights=covered, minlength=tree.n_branches) / counts
+        pairs = cKDTree(uv).query_pairs(float((1.0 + reach_radii) * rho.max()), output_type="ndarray")
+        if len(pairs) == 0:
+            continue
+        i, j = pairs[:, 0], pairs[:, 1]
+        gap = np.linalg.norm(uv[i] - uv[j], axis=1)
+        i_in_j = gap <= rho[j] + reach_radii * rho[i]
+        j_in_i = gap <= rho[i] + reach_radii * rho[j]
+        for b, members in enumerate(inside):
+            covered = np.zeros(len(points), dtype=bool)
+            covered[i[i_in_j & members[i] & ~members[j]]] = True
+            covered[j[j_in_i & members[j] & ~members[i]]] = True
+            out[b, v] = np.count_nonzero(covered & members) / counts[b]
     return out
 
 
-def prune_explained_leaves(tree: VesselTree, projections: Sequence[Projection],
-                           share: float) -> tuple[VesselTree, int]:
-    """Remove, one at a time (the most covered first), leaf branches whose points the rest of the
-    tree covers over ``share`` in every view: such a branch adds nothing that any view shows (a
-    phantom where two vessels' cones cross); a branch with pixels no other explains in some view
-    stays. Returns the tree and how many branches went."""
+def prune_explained_branches(tree: VesselTree, projections: Sequence[Projection], share: float,
+                             reach_radii: float) -> tuple[VesselTree, int]:
+    """Remove, one subtree at a time (the most covered first, of equally covered ones the one with
+    the most points), a branch and its descendants when
+    the rest of the tree covers over ``share`` of their points in every view
+    (:func:`explained_shares`): they add nothing that any view shows (a phantom where two vessels'
+    cones cross, and the phantoms it leads to), while a subtree with pixels nothing else explains
+    in some view stays. The root's subtree, the whole tree, always stays. Returns the tree and
+    how many branches went."""
     removed = 0
     while tree.n_branches > 1:
-        shares = explained_shares(tree, projections).min(axis=1)
-        leaves = [i for i in range(1, tree.n_branches) if not tree.children(i)]
-        candidates = [i for i in leaves if shares[i] > share]
+        shares = explained_shares(tree, projections, reach_radii).min(axis=1)
+        sizes = np.array([sum(tree.branches[b].n_points for b in members) for members in _subtrees(tree)])
+        candidates = [b for b in range(1, tree.n_branches) if shares[b] > share]
         if not candidates:
             break
-        tree = _without(tree, max(candidates, key=lambda i: shares[i]))
-        removed += 1
+        best = max(candidates, key=lambda b: (shares[b], sizes[b]))  # of equally covered subtrees the largest
+        for b in _subtrees(tree)[best][::-1]:  # descendants after their parents: leaves go first
+            tree = _without(tree, int(b))
+            removed += 1
     return tree, removed
 
 
@@ -291,7 +314,7 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     start = time.perf_counter()
     tree, tree_build = hull_tree(initial, lattice, projections, masks,
                                  support_points_mm=support_points_mm, settings=settings.tree)
-    tree, pruned = prune_explained_leaves(tree, projections, settings.explained_share)
+    tree, pruned = prune_explained_branches(tree, projections, settings.explained_share, settings.explained_reach_radii)
     tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     timings["tree"] = time.perf_counter() - start
     say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed)")
