@@ -136,7 +136,8 @@ def agreement_warning(coverage: dict[str, float], *, calibrated: bool) -> str | 
     if calibrated:
         return (f"the views still disagree after calibration ({which}): the hull of all views covers {listed} of each "
                 f"mask (below {100 * AGREEMENT_MIN_COVERAGE:.0f} % means disagreement); the result is unreliable: check "
-                f"that the masks show the same vessels and the geometry (report.json: calibration)")
+                f"that the masks show the same vessels, that no view's image cuts off vessel the others show (it is "
+                f"lost), and the geometry (report.json: calibration)")
     return (f"the views disagree ({which}): the hull of all views covers {listed} of each mask (below "
             f"{100 * AGREEMENT_MIN_COVERAGE:.0f} % means disagreement); the geometry may be off by pixels (try "
             f"--calibrate), or the masks may not show the same vessels")
