@@ -38,6 +38,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from _versions import library_versions  # noqa: E402  (benchmarks/_versions.py, beside this script)
 
 SHARED = Path(os.environ.get("ANGIOHULL_SHARED", Path(__file__).resolve().parents[2] / "shared"))
 LEVELS = ("simple", "moderate", "tortuous")
@@ -189,7 +190,7 @@ def main(argv=None) -> int:
     header = [f"# Calibration robustness: one view moved by 5-40 px",
               "",
               f"`python benchmarks/calibration_robustness.py --trees {args.trees} --workers {args.workers}`, "
-              f"{datetime.date.today().isoformat()}, {platform.machine()}, {os.cpu_count()} CPUs, "
+              f"{datetime.date.today().isoformat()}, {platform.machine()}, {os.cpu_count()} CPUs, {library_versions()}, "
               f"{time.perf_counter() - start:.0f} s wall. A case loses when its calibrated Dice3D is more than "
               f"{args.bar:g} points below its clean Dice3D (and, in the last two columns, below the Dice3D of the "
               f"moved masks with the exact inverse shift: what moves past an image's edge is lost whatever the "

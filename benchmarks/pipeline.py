@@ -38,6 +38,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from _versions import library_versions  # noqa: E402  (benchmarks/_versions.py, beside this script)
 
 SHARED = Path(os.environ.get("ANGIOHULL_SHARED", Path(__file__).resolve().parents[2] / "shared"))
 EIGHT_VIEWS = ("RAO 30 CRA 30; LAO 60 CRA 30; RAO 30 CAU 30; LAO 45 CAU 20; AP CRA 40; RAO 10 CAU 35; "
@@ -192,7 +193,7 @@ def main(argv=None) -> int:
         "# The pipeline's time against the authors'",
         "",
         f"`python benchmarks/pipeline.py --studies {args.studies} --repeats {args.repeats}`, "
-        f"{datetime.date.today().isoformat()}, {platform.machine()}, {os.cpu_count()} CPUs, "
+        f"{datetime.date.today().isoformat()}, {platform.machine()}, {os.cpu_count()} CPUs, {library_versions()}, "
         f"{time.perf_counter() - wall:.0f} s wall. Medians over {len(rows)} of the authors' studies "
         f"(each a median of {args.repeats} interleaved repeats); the authors' whole reconstruction is their "
         f"recorded carving time plus {args.peer_centerline_s:g} s of centerline and bifurcation steps. Those "

@@ -49,6 +49,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from _versions import library_versions  # noqa: E402  (benchmarks/_versions.py, beside this script)
 
 LEVELS = ("simple", "moderate", "tortuous")
 VIEWS3 = ("RAO 30 CRA 30", "LAO 60 CRA 30", "RAO 30 CAU 30")
@@ -354,7 +355,8 @@ def markdown(summary: dict, meta: dict) -> str:
     keys = list(summary)
     lines = [f"# Quantitative coronary analysis against the truth ({meta['date']})", "",
              f"Made by `OPENBLAS_NUM_THREADS=1 python benchmarks/qca.py --trees {meta['trees']} --workers "
-             f"{meta['workers']}` at commit {meta['commit']} on {meta['machine']}, Python {meta['python']}, in "
+             f"{meta['workers']}` at commit {meta['commit']} on {meta['machine']}, Python {meta['python']} "
+             f"({meta.get('libraries', 'libraries not recorded')}), in "
              f"{meta['wall_s']:.0f} s. {2 * meta['trees']} generated trees ({meta['trees']} RCA, {meta['trees']} "
              f"left) with 1-3 stenoses of 30-80 %, {meta['true_lesions']} stenoses in all, {meta['lesions_50']} of them "
              f">= 50 %; refined preset; the default `QcaSettings()`. Errors are measured minus true, mean ± sd. "
@@ -429,7 +431,7 @@ def main() -> None:
     except (OSError, subprocess.CalledProcessError):
         commit = "unknown"
     meta = {"date": datetime.date.today().isoformat(), "machine": f"{platform.machine()}, {os.cpu_count()} cores",
-            "commit": commit, "python": platform.python_version(),
+            "commit": commit, "python": platform.python_version(), "libraries": library_versions(),
             "trees": args.trees, "workers": args.workers, "wall_s": wall,
             "true_lesions": sum(len(r["true_lesions"]) for r in first),
             "lesions_50": sum(t["diameter_stenosis_pct"] >= 50 for r in first for t in r["true_lesions"]),

@@ -36,6 +36,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from _versions import library_versions  # noqa: E402  (benchmarks/_versions.py, beside this script)
 
 LEVELS = ("simple", "moderate", "tortuous")
 TWO = ("RAO 30 CAU 25", "LAO 45 CRA 20")
@@ -189,7 +190,7 @@ def main() -> None:
     command = "--timing-only" if args.timing_only else f"--trees {args.trees} --workers {args.workers}"
     lines = ["# Results: the tree method against the visual hull", "",
              f"Produced by `OPENBLAS_NUM_THREADS=1 python benchmarks/tree_method.py {command}` on {datetime.date.today()}, commit {commit}, {platform.machine()} with "
-             f"{os.cpu_count()} cores, Python {platform.python_version()}, in {elapsed:.0f} s. The same "
+             f"{os.cpu_count()} cores, Python {platform.python_version()} ({library_versions()}), in {elapsed:.0f} s. The same "
              f"defaults for every case; mean ± sd (median).", ""]
     for setup in [] if args.timing_only else SETUPS:
         views = SETUPS[setup][0]

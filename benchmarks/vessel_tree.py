@@ -40,6 +40,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from _versions import library_versions  # noqa: E402  (benchmarks/_versions.py, beside this script)
 
 SHARED = Path(os.environ.get("ANGIOHULL_SHARED", Path(__file__).resolve().parents[2] / "shared"))
 LEVELS = ("simple", "moderate", "tortuous")
@@ -409,7 +410,7 @@ def main() -> None:
     imports_s = _import_cost() if timing else None
     lines = ["# Results: the vessel tree of a reconstruction (issue 20)", "",
              f"Produced by `{' '.join(['OPENBLAS_NUM_THREADS=1 python benchmarks/vessel_tree.py', *sys.argv[1:]])}` on {datetime.date.today().isoformat()}, commit {commit or 'unknown'}, "
-             f"{platform.machine()} with {os.cpu_count()} cores, Python {platform.python_version()}, in "
+             f"{platform.machine()} with {os.cpu_count()} cores, Python {platform.python_version()} ({library_versions()}), in "
              f"{time.perf_counter() - start:.0f} s. The same defaults for every case; the method is described in "
              f"[../vessel-tree.md](../vessel-tree.md), the scores are defined there too.", ""]
     if generated:
