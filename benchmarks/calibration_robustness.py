@@ -3,9 +3,9 @@
 For every case, one view (drawn at random) has its mask content moved by a random 5-40 px in a
 random direction, unknown to the method: a generated tree is rendered anew in the moved view (its
 exact silhouette), the authors' masks, which cannot be rendered again, are moved by whole pixels
-(resampling a binary mask by a fraction of a pixel changes its edge, a corruption of its own). The case is reconstructed from the clean masks, from the
-moved ones as they are, and from the moved ones after ``calibrate_shifts`` (default settings), with
-both presets; Dice3D against the truth. A case *loses* when its calibrated Dice3D is more than
+(resampling a binary mask by a fraction of a pixel changes its edge, a corruption of its own).
+The case is reconstructed from the clean masks, from the moved ones as they are, and from the
+moved ones after ``calibrate_shifts`` (default settings), with both presets; Dice3D against the truth. A case *loses* when its calibrated Dice3D is more than
 ``--bar`` (3) points below its clean Dice3D. The calibration's own verdict is recorded beside it:
 its outcome (improved / unchanged / reverted), the agreement of the views after it (per-view mask
 coverage, :func:`angiohull.reconstruction.calibration.view_coverage`), the silhouette fit's outline

@@ -282,7 +282,9 @@ class _Sections:
     uv: np.ndarray  # (V, N, 2)
 
 
-_REACH_BINS_PX = (12.0, 17.0, 24.0, 34.0, 48.0, 68.0, 96.0, 136.0, 192.0, 272.0, 384.0)  # profiles of similar length are sampled together (each as long as its bin's reach: steps of sqrt 2 sample a tenth fewer than steps of 2)
+# profiles of similar length are sampled together, each as long as its bin's reach (bins in steps of
+# sqrt 2 sample about a tenth fewer values than steps of 2; the samples a profile uses are the same)
+_REACH_BINS_PX = (12.0, 17.0, 24.0, 34.0, 48.0, 68.0, 96.0, 136.0, 192.0, 272.0, 384.0)
 
 
 def _runs(image: np.ndarray, uv: np.ndarray, normal: np.ndarray, reach: np.ndarray,

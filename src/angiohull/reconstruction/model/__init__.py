@@ -61,7 +61,7 @@ class ModelSettings:
     spike_window_mm: float = 3.0  # a radius above spike_ratio times the median over this much arc either side ...
     spike_ratio: float = 1.25  # ... is brought down to it (a stenosis, a narrowing, is kept)
     explained_share: float = 0.9  # a branch and its descendants this much of which the others cover in every view go
-    explained_reach_radii: float = 0.5  # covered: a point's projection within the other disc's radius plus this many of its own
+    explained_reach_radii: float = 0.5  # covered: within the other disc's radius plus this many of its own
     claim_rounds: int = 2  # matchings again with each view's pixels claimed by the other's matching
 
 
@@ -165,12 +165,11 @@ def explained_shares(tree: VesselTree, projections: Sequence[Projection], reach_
 def prune_explained_branches(tree: VesselTree, projections: Sequence[Projection], share: float,
                              reach_radii: float) -> tuple[VesselTree, int]:
     """Remove, one subtree at a time (the most covered first, of equally covered ones the one with
-    the most points), a branch and its descendants when
-    the rest of the tree covers over ``share`` of their points in every view
-    (:func:`explained_shares`): they add nothing that any view shows (a phantom where two vessels'
-    cones cross, and the phantoms it leads to), while a subtree with pixels nothing else explains
-    in some view stays. The root's subtree, the whole tree, always stays. Returns the tree and
-    how many branches went."""
+    the most points), a branch and its descendants when the rest of the tree covers over
+    ``share`` of their points in every view (:func:`explained_shares`): they add nothing that any
+    view shows (a phantom where two vessels' cones cross, and the phantoms it leads to), while a
+    subtree with pixels nothing else explains in some view stays. The root's subtree, the whole
+    tree, always stays. Returns the tree and how many branches went."""
     removed = 0
     while tree.n_branches > 1:
         shares = explained_shares(tree, projections, reach_radii).min(axis=1)
@@ -314,7 +313,8 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     start = time.perf_counter()
     tree, tree_build = hull_tree(initial, lattice, projections, masks,
                                  support_points_mm=support_points_mm, settings=settings.tree)
-    tree, pruned = prune_explained_branches(tree, projections, settings.explained_share, settings.explained_reach_radii)
+    tree, pruned = prune_explained_branches(tree, projections, settings.explained_share,
+                                            settings.explained_reach_radii)
     tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     timings["tree"] = time.perf_counter() - start
     say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed)")
