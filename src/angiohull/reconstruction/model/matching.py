@@ -22,7 +22,10 @@ Notation: view A's skeleton pixels are matched into view B; ``p`` is a pixel of 
    at the larger scale plus ``radius_sigma_rel`` of the radius, capped at ``radius_cap``). B's
    half-width is taken at the candidate and at B's nearest skeleton pixel, and the one that agrees
    better counts (the first is off the axis for a piece of a long run, the second widened by an
-   overlap or a junction nearby). With three or more views, for every other view: the candidate
+   overlap or a junction nearby). ``p`` lies on A's skeleton, so its partner should lie on B's:
+   the candidate's distance ``d`` to B's skeleton costs ``(d / partner_skeleton_px)**2`` (capped
+   at ``cap``; since 2026-12-02: a piece of a slanted run, or a run's middle between two vessels,
+   lies off it). With three or more views, for every other view: the candidate
    is dropped when its projection lies farther than ``mask_px`` from that view's mask (outside the
    visual hull), and costs ``(d / other_skeleton_px)**2`` (capped at ``cap``) for its distance
    ``d`` to that view's skeleton. With ``claims`` (B's own matching into A, from an earlier
@@ -71,6 +74,7 @@ class MatchSettings:
     radius_sigma_rel: float = 0.15
     mask_px: float = 1.5  # a candidate farther than this from another view's mask is outside the hull
     other_skeleton_px: float = 2.0  # scale of the cost of a candidate's distance to another view's skeleton
+    partner_skeleton_px: float = 3.0  # ... and to the partner view's own skeleton
     cap: float = 4.0  # each unary term at most this
     max_stretch: float = 3.0  # 3D step over the projected step in A beyond which a jump costs
     jump_weight: float = 1.0
@@ -239,6 +243,10 @@ def _candidates(a: ViewData, b: ViewData, others: Sequence[ViewData], samples: n
         cost = np.minimum(((ra - r) / sigma) ** 2, settings.radius_cap)
         better = cost < unary
         unary[better], rb[better] = cost[better], r[better]
+    # p lies on A's skeleton, so its partner should lie on B's: a candidate off B's skeleton (a
+    # piece of a run that crosses a vessel at a slant, or a run between two vessels) costs for it
+    off_skeleton_b = _bilinear(b.skeleton_px, q_uv)
+    unary += np.minimum((off_skeleton_b / settings.partner_skeleton_px) ** 2, settings.cap)
     valid = a.projection.in_front(point) & b.projection.in_front(point)
     for other in others:
         uv = other.projection.project(point)
