@@ -741,6 +741,7 @@ class _SupportBridge:
         if self._occupied is None:  # the first use: most trees need no bridge
             self._occupied, self._origin, self._h = _occupancy(self._support, self._lattice, self._lattice.spacing_mm)
         cells = np.round((np.asarray(part_mm) - self._origin) / self._h).astype(np.int64)
+        graphs: dict[tuple, tuple] = {}  # both reaches' boxes are the whole volume when it is small
         for grown in (False, True):
             # most gaps are short: search a quarter of the reach first, in the graph of that reach
             # (the nearest target within it is the nearest of all), the whole reach only when none
@@ -751,7 +752,10 @@ class _SupportBridge:
                 high = np.minimum(cells.max(axis=0) + margin + 1, self._occupied.shape)
                 if np.any(high <= low):
                     return None
-                index, points, graph = self._graph(low, high, grown)
+                key = (tuple(low.tolist()), tuple(high.tolist()), grown)
+                if key not in graphs:
+                    graphs[key] = self._graph(low, high, grown)
+                index, points, graph = graphs[key]
                 sources, targets = self._lookup(index, low, part_mm), self._lookup(index, low, tree_mm)
                 if len(sources) == 0:
                     break  # the larger box holds no more of the part's cells than this one

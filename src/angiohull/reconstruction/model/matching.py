@@ -13,8 +13,8 @@ Notation: view A's skeleton pixels are matched into view B; ``p`` is a pixel of 
    middle is one more candidate: a line that crosses a vessel at a slant runs through it for its
    width / sin(angle), and the middle of that run is on the axis. (Until 2026-12-02 it was no
    candidate: a straight vessel crossing the lines at 28 degrees came out 1.0-1.45 mm off its axis
-   all along.) Mask runs, not B's skeleton, so that a
-   vessel foreshortened into a blob in B, or two vessels overlapping there, still give one. Each
+   all along.) Mask runs, not B's skeleton, so that a vessel foreshortened into a blob in B, or
+   two vessels overlapping there, still give one. Each
    candidate is triangulated (midpoint of the shortest segment between the two rays) and tagged
    with B's skeleton pixel nearest to it (its chain and direction in B).
 2. **Unary cost**: the disagreement of the radius the two views show at that depth (half-width
