@@ -9,6 +9,8 @@ Runs, with the same defaults for every case (:class:`angiohull.qca.QcaSettings()
   RAO 30 CAU 30) and from 2 (the first two), each from the exact masks and from segmented
   angiograms (rendered with :func:`angiohull.synthetic.angiogram.render_angiogram`, collimator
   8 px, seeded; segmented by :func:`angiohull.segmentation.segment_vessels` with its defaults);
+  the 2-view cases also with the tree method (``method="tree"``, docs/tree-method.md), the one
+  built for two views;
 * :func:`angiohull.qca.analyse_tree` on each reconstructed tree, compared with the truth:
 
   - every true stenosis: its MLD point (the true centerline point of least radius inside the
@@ -53,7 +55,8 @@ from _versions import library_versions  # noqa: E402  (benchmarks/_versions.py, 
 
 LEVELS = ("simple", "moderate", "tortuous")
 VIEWS3 = ("RAO 30 CRA 30", "LAO 60 CRA 30", "RAO 30 CAU 30")
-SETUPS = (("3 views", "masks"), ("3 views", "segmented"), ("2 views", "masks"), ("2 views", "segmented"))
+SETUPS = (("3 views", "masks", "hull"), ("3 views", "segmented", "hull"), ("2 views", "masks", "hull"),
+          ("2 views", "segmented", "hull"), ("2 views", "masks", "tree"), ("2 views", "segmented", "tree"))
 MATCH_MM = 5.0
 END_MM = 8.0  # a branch length's error is split into its first and last END_MM and the rest between
 CAAS = {  # CAAS 3D bifurcation QCA on phantoms (EuroIntervention 2012), error mean +- sd
@@ -223,6 +226,11 @@ def _bifurcation_angles(truth_qca, rec_qca) -> list[dict]:
     return out
 
 
+def _label(n_views: str, source: str, method: str) -> str:
+    """A setup's column: the refined hull unless the tree method is named."""
+    return f"{n_views}, {source}" + (", tree method" if method == "tree" else "")
+
+
 def _views(setup_views: str, case):
     return case.views if setup_views == "3 views" else case.views[:2]
 
@@ -246,15 +254,16 @@ def _run_tree(task: tuple[str, int]) -> list[dict]:
                                                   AngiogramParameters(collimator_px=8)).image)
                  for i, v in enumerate(case.views)]
     rows = []
-    for n_views, source in SETUPS:
+    for n_views, source, method in SETUPS:
         views = _views(n_views, case)
         masks = [v.mask for v in views] if source == "masks" else segmented[:len(views)]
         projections = [v.carm.projection() for v in views]
         row = {"kind": kind, "index": index, "seed": seed, "seeds_passed": passed, "views": n_views,
-               "source": source, "true_lesions": true_lesions}
+               "source": source, "method": method, "true_lesions": true_lesions}
         t0 = time.perf_counter()
         try:
-            result = reconstruct(projections, masks, preset="refined")
+            result = (reconstruct(projections, masks, preset="refined") if method == "hull"
+                      else reconstruct(projections, masks, method="tree", centerlines=False))
         except Exception as exc:  # noqa: BLE001 - a failed case is a row, not a crash
             rows.append({**row, "error": f"{type(exc).__name__}: {exc}"})
             continue
@@ -291,9 +300,10 @@ def _stats(values) -> dict:
 
 def summarise(rows: list[dict]) -> dict:
     out = {}
-    for n_views, source in SETUPS:
-        sel = [r for r in rows if r["views"] == n_views and r["source"] == source and "error" not in r]
-        errors = [r for r in rows if r["views"] == n_views and r["source"] == source and "error" in r]
+    for n_views, source, method in SETUPS:
+        same = [r for r in rows if r["views"] == n_views and r["source"] == source and r.get("method", "hull") == method]
+        sel = [r for r in same if "error" not in r]
+        errors = [r for r in same if "error" in r]
         diffs = {k: [] for k in ("diameter_stenosis_pct", "mld_mm", "reference_diameter_mm", "lesion_length_mm")}
         sev50 = found50 = 0
         false_all = false50 = 0
@@ -321,7 +331,7 @@ def summarise(rows: list[dict]) -> dict:
         within = [abs(b["measured_mm"] - b["true_mm"]) <= max(0.01 * b["true_mm"], 1.0) for b in lengths]
         angles = [a for r in sel for a in r["angles"]]
         n_true = sum(len(r["true_lesions"]) for r in sel)
-        out[f"{n_views}, {source}"] = {
+        out[_label(n_views, source, method)] = {
             "trees": len(sel), "failed": len(errors), "true_lesions": n_true,
             "matched_lesions": sum(len(r["pairs"]) for r in sel),
             **{k: _stats(v) for k, v in diffs.items()},
@@ -359,7 +369,7 @@ def markdown(summary: dict, meta: dict) -> str:
              f"({meta.get('libraries', 'libraries not recorded')}), in "
              f"{meta['wall_s']:.0f} s. {2 * meta['trees']} generated trees ({meta['trees']} RCA, {meta['trees']} "
              f"left) with 1-3 stenoses of 30-80 %, {meta['true_lesions']} stenoses in all, {meta['lesions_50']} of them "
-             f">= 50 %; refined preset; the default `QcaSettings()`. Errors are measured minus true, mean ± sd. "
+             f">= 50 %; refined preset (the columns marked tree method: `method=\"tree\"`); the default `QcaSettings()`. Errors are measured minus true, mean ± sd. "
              f"Seeds passed over for having no stenosis or more than 3: {meta['seeds_passed']}.", "",
              "| quantity | target (3 views) | " + " | ".join(keys) + " | CAAS 3D (phantom) |",
              "|---|---|" + "---|" * len(keys) + "---|"]
@@ -424,7 +434,7 @@ def main() -> None:
             print(f"[{time.perf_counter() - t0:6.0f} s] tree {k + 1}/{len(tasks)}", file=sys.stderr, flush=True)
     wall = time.perf_counter() - t0
     summary = summarise(rows)
-    first = [r for r in rows if r["views"] == "3 views" and r["source"] == "masks"]
+    first = [r for r in rows if r["views"] == "3 views" and r["source"] == "masks" and r["method"] == "hull"]
     try:
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                                 cwd=Path(__file__).resolve().parent, check=True).stdout.strip()
