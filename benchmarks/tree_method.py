@@ -207,6 +207,17 @@ def _timing(repeats: int) -> list[dict]:
     return out
 
 
+def _rounded(value, digits: int = 5):
+    """Floats to ``digits`` decimals, so that the raw rows stay small enough to commit."""
+    if isinstance(value, float):
+        return round(value, digits)
+    if isinstance(value, dict):
+        return {k: _rounded(v, digits) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_rounded(v, digits) for v in value]
+    return value
+
+
 def _fmt(values) -> str:
     values = np.asarray([v for v in values if v is not None and np.isfinite(v)], dtype=float)
     if len(values) == 0:
@@ -295,8 +306,9 @@ def main() -> None:
     print(text)
     if args.output is not None:
         args.output.write_text(text + "\n", encoding="utf-8")
-        args.output.with_suffix(".json").write_text(json.dumps({"generated": rows, "authors": peer_rows, "xcat": xcat_rows, "timing": timing}, indent=1,
-                                                               default=float) + "\n", encoding="utf-8")
+        raw = {"generated": rows, "authors": peer_rows, "xcat": xcat_rows, "timing": timing}
+        args.output.with_suffix(".json").write_text(json.dumps(_rounded(raw), separators=(",", ":"), default=float) + "\n",
+                                                    encoding="utf-8")
 
 
 if __name__ == "__main__":
