@@ -191,6 +191,114 @@ def test_a_subtree_with_pixels_nothing_else_explains_stays_whole():
     assert explained_shares(everything, projections, 0.5)[3].min() == 1.0
 
 
+# -- pruning the branches the views' own matchings do not reproduce --------------------------------
+def _own_matchings(tree, projections, lying=()):
+    """Per view, a skeleton made of the projected points of ``tree``'s branches, each skeleton pixel
+    matched (its "own matching") to the 3D point that projects there, except the branches in
+    ``lying``, whose pixels are matched 10 mm off; every seventh pixel is left unmatched. Returns
+    (own points per view, nearest-skeleton maps)."""
+    from scipy import ndimage as ndi
+
+    own, nearest = [], []
+    for projection in projections:
+        rows, cols = projection.image_shape
+        index = np.full((rows, cols), -1, dtype=np.int64)
+        points = []
+        for b, branch in enumerate(tree.branches):
+            uv = np.rint(projection.project(branch.points_mm)).astype(np.int64)
+            for (u, v), x in zip(uv, branch.points_mm):
+                if index[v, u] < 0:
+                    index[v, u] = len(points)
+                    points.append(x + (np.array([0.0, 0.0, 10.0]) if b in lying else 0.0))
+        matched = np.array(points)
+        matched[::7] = np.nan
+        _, (r, c) = ndi.distance_transform_edt(index < 0, return_indices=True)
+        own.append(matched)
+        nearest.append(index[r, c])
+    return own, nearest
+
+
+def _reproduced_by_brute_force(tree, projections, own, nearest, tolerance_mm):
+    points, _, _ = tree.points()
+    out = []
+    for x in points:
+        ok = True
+        for projection, matched, near in zip(projections, own, nearest):
+            u, v = (int(round(float(c))) for c in projection.project(x[None])[0])
+            if not (0 <= v < near.shape[0] and 0 <= u < near.shape[1]) or near[v, u] < 0:
+                continue
+            gap = float(np.linalg.norm(matched[near[v, u]] - x))
+            ok = ok and not gap > tolerance_mm  # an unmatched pixel (nan) is no evidence
+        out.append(ok)
+    return np.array(out)
+
+
+def _with_mirror_phantom():
+    """The Y plus the phantom two views cannot rule out: the points that project onto the second
+    branch in the first view and onto the first branch (the trunk's straight continuation past the
+    junction) in the second: the first view's rays through the second branch cut by the plane of
+    the second view's camera centre and the first branch. Its stretch 30-95 % of the way along the
+    first branch's image, 10-30 mm from the true vessels, runs on for 12 mm (a tail that no other
+    branch covers) and hangs off the trunk."""
+    y, projections = _y(), _views()
+    first, second = y.branches[0].points_mm[60:], y.branches[1].points_mm
+    c0, c1 = projections[0].camera_centre_mm, projections[1].camera_centre_mm
+    normal = np.cross(first[-1] - first[0], c1 - first[0])
+    rays = second - c0
+    t = ((first[0] - c0) @ normal) / (rays @ normal)
+    phantom = c0 + t[:, None] * rays
+    uv = projections[1].project(phantom)
+    ends = projections[1].project(first[[0, -1]])
+    along = (uv - ends[0]) @ (ends[1] - ends[0]) / np.sum((ends[1] - ends[0]) ** 2)
+    phantom = phantom[(along > 0.3) & (along < 0.95)]
+    direction = (phantom[-1] - phantom[-2]) / np.linalg.norm(phantom[-1] - phantom[-2])
+    phantom = np.vstack([phantom, _line(phantom[-1], phantom[-1] + 12.0 * direction)[1:]])
+    attach = int(np.argmin(np.linalg.norm(y.branches[0].points_mm - phantom[0], axis=1)))
+    return VesselTree(y.branches + (Branch(phantom, 1.0, parent=0, parent_point=attach, name="phantom"),)), projections
+
+
+def test_reproduced_points_match_a_point_by_point_reference():
+    from angiohull.reconstruction.model import reproduced_points
+
+    tree, projections = _with_mirror_phantom()
+    own, nearest = _own_matchings(_y(), projections)
+    for tolerance in (0.5, 2.0, 5.0):
+        np.testing.assert_array_equal(reproduced_points(tree, projections, own, nearest, tolerance),
+                                      _reproduced_by_brute_force(tree, projections, own, nearest, tolerance))
+
+
+def test_a_mirror_phantom_the_matchings_do_not_reproduce_goes_and_the_true_tree_stays():
+    from angiohull.reconstruction.model import (explained_shares, prune_explained_branches,
+                                                prune_unreproduced_branches, reproduced_points)
+
+    tree, projections = _with_mirror_phantom()
+    own, nearest = _own_matchings(_y(), projections)  # the views' own matchings found the true Y
+    reproduced = reproduced_points(tree, projections, own, nearest, 2.0)
+    owner = tree.points()[2]
+    assert reproduced[owner < 2].all() and reproduced[owner == 2].mean() < 0.1
+    # the rest covers it (the first view's second branch, the second view's first branch) but for
+    # its tail: not enough for the explained rule, which keeps it
+    assert 0.3 <= explained_shares(tree, projections, 0.5)[2].min() < 0.9
+    assert prune_explained_branches(tree, projections, 0.9, 0.5)[1] == 0
+    pruned, removed = prune_unreproduced_branches(tree, projections, own, nearest, tolerance_mm=2.0, share=0.3,
+                                                  explained=0.3, reach_radii=0.5)
+    assert removed == 1 and [b.name for b in pruned.branches] == ["trunk", "second"]
+    np.testing.assert_array_equal(pruned.branches[1].points_mm, tree.branches[1].points_mm)
+
+
+def test_a_branch_nothing_else_explains_stays_whatever_the_matchings_say():
+    from angiohull.reconstruction.model import explained_shares, prune_unreproduced_branches, reproduced_points
+
+    tree, projections = _y(), _views()
+    own, nearest = _own_matchings(tree, projections, lying=(1,))  # the matchings put the second branch 10 mm off
+    owner = tree.points()[2]
+    assert reproduced_points(tree, projections, own, nearest, 2.0)[owner == 1].mean() < 0.1  # its junction pixel is the trunk's
+    assert explained_shares(tree, projections, 0.5)[1].min() < 0.3
+    pruned, removed = prune_unreproduced_branches(tree, projections, own, nearest, tolerance_mm=2.0, share=0.3,
+                                                  explained=0.3, reach_radii=0.5)
+    assert removed == 0 and pruned.n_branches == 2
+
+
 # -- named cases -------------------------------------------------------------------------------
 def _helix():
     t = np.linspace(0, 3 * np.pi, 300)

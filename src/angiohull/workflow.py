@@ -325,6 +325,8 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
             "pairs": [[result.view_names[a], result.view_names[b]] for a, b in build.pairs],
             "matched_share": [float(x) for x in build.matched_share],
             "skeleton_pixels": dict(zip(result.view_names, (int(n) for n in build.skeleton_pixels))),
+            "branches_removed": {"explained_by_the_others": int(build.explained_removed),
+                                 "not_reproduced_by_the_matchings": int(build.unreproduced_removed)},
             "timings_s": {k: float(v) for k, v in build.timings_s.items()},
         }
     if scores is not None:

@@ -22,7 +22,12 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    points in every view is removed with its descendants, one subtree at a time, the most covered
    first: they add nothing any view shows (a phantom where two vessels' cones cross, and the
    phantom branches it carries), while a subtree with pixels nothing else explains in some view
-   stays.
+   stays. Then a subtree that the views' own matchings do not reproduce goes too, when the rest
+   covers at least ``unreproduced_explained`` of it in every view: a tree point is *reproduced*
+   unless, in some view, the skeleton pixel under it was matched by that view's own matching to a
+   3D point more than ``reproduced_mm`` away (a vessel of A matched to the wrong vessel of B gives
+   points that B's own matching puts elsewhere); a subtree less than ``reproduced_share``
+   reproduced goes, the least reproduced first.
 5. **Lumen points**: the lattice points inside the fitted tree's tubes.
 
 Arrays and projections in, points and a tree out; nothing here reads files.
@@ -47,7 +52,8 @@ from .matching import MATCH_SETTINGS, MatchSettings, ViewData, match_pixels
 from .tubes import lattice_points_in_tubes
 
 __all__ = ["ModelSettings", "MODEL_SETTINGS", "ModelBuild", "model_tree", "centerline_graph", "CenterlineGraph2D",
-           "MatchSettings", "lattice_points_in_tubes"]
+           "MatchSettings", "lattice_points_in_tubes", "explained_shares", "prune_explained_branches",
+           "reproduced_points", "prune_unreproduced_branches"]
 
 
 @dataclass(frozen=True)
@@ -62,6 +68,9 @@ class ModelSettings:
     spike_ratio: float = 1.25  # ... is brought down to it (a stenosis, a narrowing, is kept)
     explained_share: float = 0.9  # a branch and its descendants this much of which the others cover in every view go
     explained_reach_radii: float = 0.5  # covered: within the other disc's radius plus this many of its own
+    reproduced_mm: float = 2.0  # a point the views' own matchings place within this is reproduced (module notes)
+    reproduced_share: float = 0.3  # a subtree reproduced less than this ...
+    unreproduced_explained: float = 0.3  # ... and covered by the rest this much in every view goes
     claim_rounds: int = 2  # matchings again with each view's pixels claimed by the other's matching
 
 
@@ -75,9 +84,10 @@ class ModelBuild:
     pairs: tuple[tuple[int, int], ...]  # (view, partner) pairs matched
     matched_share: tuple[float, ...]  # per pair: share of the chain pixels given a match
     skeleton_pixels: tuple[int, ...]  # per view
-    explained_removed: int  # leaf branches removed because the rest of the tree covers them in every view
+    explained_removed: int  # branches removed because the rest of the tree covers them in every view
     tree_build: TreeBuild
     timings_s: dict[str, float]
+    unreproduced_removed: int = 0  # branches removed because the views' own matchings do not reproduce them
 
 
 def _viewing_direction(projection: Projection) -> np.ndarray:
@@ -184,6 +194,58 @@ def prune_explained_branches(tree: VesselTree, projections: Sequence[Projection]
     return tree, removed
 
 
+def reproduced_points(tree: VesselTree, projections: Sequence[Projection], own_points_mm: Sequence[np.ndarray],
+                      nearest_skeleton: Sequence[np.ndarray], tolerance_mm: float) -> np.ndarray:
+    """(N,) per point of ``tree.points()``: False where, in some view, the skeleton pixel nearest the
+    pixel the point projects into was matched by that view's own matching (``own_points_mm[v]``,
+    (P_v, 3), nan where unmatched) to a 3D point farther than ``tolerance_mm`` from it; True
+    otherwise (also where the view has no match there, or the point projects outside the image:
+    a bridge through the hull, or a stretch the view did not match, is not evidence against it).
+    ``nearest_skeleton[v]`` is the view's (rows, cols) map of the nearest skeleton pixel's index
+    (-1: none)."""
+    points, _, _ = tree.points()
+    reproduced = np.ones(len(points), dtype=bool)
+    for projection, own, nearest in zip(projections, own_points_mm, nearest_skeleton):
+        rows, cols = nearest.shape
+        uv = np.rint(projection.project(points)).astype(np.int64)
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] < cols) & (uv[:, 1] >= 0) & (uv[:, 1] < rows)
+        pixel = np.full(len(points), -1, dtype=np.int64)
+        pixel[inside] = nearest[uv[inside, 1], uv[inside, 0]]
+        known = np.flatnonzero(pixel >= 0)
+        gap = np.linalg.norm(own[pixel[known]] - points[known], axis=1)  # nan where unmatched
+        reproduced[known[gap > tolerance_mm]] = False
+    return reproduced
+
+
+def prune_unreproduced_branches(tree: VesselTree, projections: Sequence[Projection],
+                                own_points_mm: Sequence[np.ndarray], nearest_skeleton: Sequence[np.ndarray], *,
+                                tolerance_mm: float, share: float, explained: float,
+                                reach_radii: float) -> tuple[VesselTree, int]:
+    """Remove, one subtree at a time (the least reproduced first, of equally reproduced ones the
+    most covered), a branch and its descendants when less than ``share`` of their points are
+    reproduced (:func:`reproduced_points`) and the rest of the tree covers at least ``explained``
+    of them in every view (:func:`explained_shares`). A vessel of one view matched to the wrong
+    vessel of the other lies where neither view's own matching puts those pixels, and the rest of
+    the tree shows the same pixels; a subtree that nothing else explains in some view stays,
+    whatever the matchings say. The root's subtree always stays. Returns the tree and how many
+    branches went."""
+    removed = 0
+    while tree.n_branches > 1:
+        reproduced = reproduced_points(tree, projections, own_points_mm, nearest_skeleton, tolerance_mm)
+        _, _, owner = tree.points()
+        subtrees = _subtrees(tree)
+        shares = np.array([reproduced[np.isin(owner, members)].mean() for members in subtrees])
+        covered = explained_shares(tree, projections, reach_radii).min(axis=1)
+        candidates = [b for b in range(1, tree.n_branches) if shares[b] < share and covered[b] >= explained]
+        if not candidates:
+            break
+        worst = min(candidates, key=lambda b: (shares[b], -covered[b]))
+        for b in subtrees[worst][::-1]:  # descendants after their parents: leaves go first
+            tree = _without(tree, int(b))
+            removed += 1
+    return tree, removed
+
+
 def without_radius_spikes(tree: VesselTree, window_mm: float, ratio: float) -> VesselTree:
     """The tree with every radius above ``ratio`` times the median of its branch's radii within
     ``window_mm`` of arc either side brought down to that bound. The lumen of the tree method is
@@ -218,7 +280,8 @@ def tree_lumen_points(tree: VesselTree, lattice: Lattice, margin_mm: float = 0.0
 def _correspondence_volume(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice,
                            settings: ModelSettings, say: Callable[[str], None], timings: dict[str, float]):
     """Steps 1-3: the lattice points of the matched tubes, the pairs matched, the share of each
-    pair's pixels matched, and the skeleton pixels per view."""
+    pair's pixels matched, the skeleton pixels per view, and per view its own matching's 3D point
+    per skeleton pixel (nan where unmatched) with its map of the nearest skeleton pixel."""
     start = time.perf_counter()
     views = [_view_data(p, m) for p, m in zip(projections, masks)]
     timings["centerlines_2d"] = time.perf_counter() - start
@@ -258,7 +321,11 @@ def _correspondence_volume(projections: Sequence[Projection], masks: Sequence[np
                                   "check the calibration and that the masks show the same vessels")
     initial = lattice_points_in_tubes(a, b, r0, r1, lattice)
     timings["tubes"] = time.perf_counter() - start
-    return initial, tuple(pairs), tuple(shares), tuple(v.graph.n_pixels for v in views)
+    own = [np.full((v.graph.n_pixels, 3), np.nan) for v in views]
+    for a, b in pairs:
+        own[a] = results[(a, b)][0]
+    return (initial, tuple(pairs), tuple(shares), tuple(v.graph.n_pixels for v in views), own,
+            [v.nearest_skeleton for v in views])
 
 
 
@@ -302,9 +369,10 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     say = progress or (lambda _text: None)
     timings: dict[str, float] = {}
     masks = [np.asarray(m, dtype=bool) for m in masks]
+    own = nearest = None
     if initial_points_mm is None:
-        initial, pairs, shares, skeleton_pixels = _correspondence_volume(projections, masks, lattice, settings, say,
-                                                                         timings)
+        initial, pairs, shares, skeleton_pixels, own, nearest = _correspondence_volume(projections, masks, lattice,
+                                                                                       settings, say, timings)
     else:
         initial, pairs, shares, skeleton_pixels = np.asarray(initial_points_mm, dtype=float), (), (), ()
     if len(initial) < 2:
@@ -315,14 +383,20 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
                                  support_points_mm=support_points_mm, settings=settings.tree)
     tree, pruned = prune_explained_branches(tree, projections, settings.explained_share,
                                             settings.explained_reach_radii)
+    unreproduced = 0
+    if own is not None:  # the correspondences made the volume: their own matchings judge its branches
+        tree, unreproduced = prune_unreproduced_branches(
+            tree, projections, own, nearest, tolerance_mm=settings.reproduced_mm, share=settings.reproduced_share,
+            explained=settings.unreproduced_explained, reach_radii=settings.explained_reach_radii)
     tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     timings["tree"] = time.perf_counter() - start
-    say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed)")
+    say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed, "
+        f"{unreproduced} that the views' own matchings do not reproduce)")
 
     start = time.perf_counter()
     lumen = tree_lumen_points(tree, lattice, settings.lumen_margin_steps * lattice.spacing_mm)
     timings["lumen"] = time.perf_counter() - start
     build = ModelBuild(pairs=pairs, matched_share=shares, skeleton_pixels=skeleton_pixels, explained_removed=pruned,
-                       tree_build=tree_build,
+                       unreproduced_removed=unreproduced, tree_build=tree_build,
                        timings_s=timings)
     return lumen, tree, build
