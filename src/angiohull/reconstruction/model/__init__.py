@@ -235,6 +235,8 @@ def prune_unreproduced_branches(tree: VesselTree, projections: Sequence[Projecti
         _, _, owner = tree.points()
         subtrees = _subtrees(tree)
         shares = np.array([reproduced[np.isin(owner, members)].mean() for members in subtrees])
+        if not (shares[1:] < share).any():
+            break  # the coverage is not needed: nothing is unreproduced enough
         covered = explained_shares(tree, projections, reach_radii).min(axis=1)
         candidates = [b for b in range(1, tree.n_branches) if shares[b] < share and covered[b] >= explained]
         if not candidates:
