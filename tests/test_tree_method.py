@@ -414,3 +414,23 @@ def test_an_empty_hull_gives_an_empty_result_when_allowed():
     masks[1][0, 0] = True  # one pixel far from the vessel: the hull is empty
     result = reconstruct(projections, masks, method="tree", allow_empty=True)
     assert len(result.vessel_points_mm) == 0 and result.tree is None and result.tree_error == "the hull is empty"
+
+
+def test_the_report_of_a_tree_reconstruction_names_its_pairs_prunings_and_stages(tmp_path):
+    import json
+
+    from angiohull.cli import main
+    from angiohull.study import View, save_study
+
+    truth = _y()
+    carms = [CArmGeometry(*parse_clinical_angles(v), 1200.0, 800.0, (0.35, 0.35), (512, 512)) for v in TWO]
+    masks = _masks(truth, [c.projection() for c in carms])
+    study = save_study(tmp_path / "y", [View.from_carm(f"view{i}", m, c) for i, (m, c) in enumerate(zip(masks, carms))])
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(study), "-o", str(out), "--method", "tree", "--no-figure", "--no-viewer",
+                 "--no-centerlines", "-q"]) == 0
+    block = json.loads((out / "report.json").read_text())["tree_method"]
+    assert block["pairs"] == [["view0", "view1"], ["view1", "view0"]]
+    assert set(block["branches_removed"]) == {"explained_by_the_others", "not_reproduced_by_the_matchings"}
+    assert all(isinstance(n, int) and n >= 0 for n in block["branches_removed"].values())
+    assert set(block["timings_s"]) >= {"centerlines_2d", "correspondence", "tubes", "tree", "lumen"}
