@@ -327,6 +327,7 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
             "skeleton_pixels": dict(zip(result.view_names, (int(n) for n in build.skeleton_pixels))),
             "branches_removed": {"explained_by_the_others": int(build.explained_removed),
                                  "not_reproduced_by_the_matchings": int(build.unreproduced_removed)},
+            "contradicted_stretch_points_removed": int(build.stretch_points_removed),
             "timings_s": {k: float(v) for k, v in build.timings_s.items()},
         }
     if scores is not None:

@@ -27,7 +27,10 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    unless, in some view, the skeleton pixel under it was matched by that view's own matching to a
    3D point more than ``reproduced_mm`` away (a vessel of A matched to the wrong vessel of B gives
    points that B's own matching puts elsewhere); a subtree less than ``reproduced_share``
-   reproduced goes, the least reproduced first.
+   reproduced goes, the least reproduced first. Last, the stretches inside branches: runs of at
+   least ``stretch_min_mm`` of points that the matchings contradict and that reproduced points
+   farther than ``stretch_apart_mm`` cover in every view are taken out of the tubes, and the
+   tree is fitted and pruned again from the rest (pieces joined through the hull).
 5. **Lumen points**: the lattice points inside the fitted tree's tubes.
 
 Arrays and projections in, points and a tree out; nothing here reads files.
@@ -53,7 +56,7 @@ from .tubes import lattice_points_in_tubes
 
 __all__ = ["ModelSettings", "MODEL_SETTINGS", "ModelBuild", "model_tree", "centerline_graph", "CenterlineGraph2D",
            "MatchSettings", "lattice_points_in_tubes", "explained_shares", "prune_explained_branches",
-           "reproduced_points", "prune_unreproduced_branches"]
+           "reproduced_points", "prune_unreproduced_branches", "covered_points", "contradicted_stretches"]
 
 
 @dataclass(frozen=True)
@@ -71,6 +74,8 @@ class ModelSettings:
     reproduced_mm: float = 2.0  # a point the views' own matchings place within this is reproduced (module notes)
     reproduced_share: float = 0.3  # a subtree reproduced less than this ...
     unreproduced_explained: float = 0.3  # ... and covered by the rest this much in every view goes
+    stretch_min_mm: float = 3.0  # a run of contradicted, covered points inside a branch this long goes (notes)
+    stretch_apart_mm: float = 5.0  # ... covered by tree points farther than this from it
     claim_rounds: int = 2  # matchings again with each view's pixels claimed by the other's matching
 
 
@@ -88,6 +93,7 @@ class ModelBuild:
     tree_build: TreeBuild
     timings_s: dict[str, float]
     unreproduced_removed: int = 0  # branches removed because the views' own matchings do not reproduce them
+    stretch_points_removed: int = 0  # points of contradicted, covered stretches inside branches (tree built again)
 
 
 def _viewing_direction(projection: Projection) -> np.ndarray:
@@ -203,8 +209,13 @@ def reproduced_points(tree: VesselTree, projections: Sequence[Projection], own_p
     a bridge through the hull, or a stretch the view did not match, is not evidence against it).
     ``nearest_skeleton[v]`` is the view's (rows, cols) map of the nearest skeleton pixel's index
     (-1: none)."""
-    points, _, _ = tree.points()
-    reproduced = np.ones(len(points), dtype=bool)
+    return ~_contradicted(tree.points()[0], projections, own_points_mm, nearest_skeleton, tolerance_mm)
+
+
+def _contradicted(points: np.ndarray, projections: Sequence[Projection], own_points_mm: Sequence[np.ndarray],
+                  nearest_skeleton: Sequence[np.ndarray], tolerance_mm: float) -> np.ndarray:
+    """(N,) the points that some view's own matching puts elsewhere (:func:`reproduced_points`)."""
+    contradicted = np.zeros(len(points), dtype=bool)
     for projection, own, nearest in zip(projections, own_points_mm, nearest_skeleton):
         rows, cols = nearest.shape
         uv = np.rint(projection.project(points)).astype(np.int64)
@@ -213,8 +224,8 @@ def reproduced_points(tree: VesselTree, projections: Sequence[Projection], own_p
         pixel[inside] = nearest[uv[inside, 1], uv[inside, 0]]
         known = np.flatnonzero(pixel >= 0)
         gap = np.linalg.norm(own[pixel[known]] - points[known], axis=1)  # nan where unmatched
-        reproduced[known[gap > tolerance_mm]] = False
-    return reproduced
+        contradicted[known[gap > tolerance_mm]] = True
+    return contradicted
 
 
 def prune_unreproduced_branches(tree: VesselTree, projections: Sequence[Projection],
@@ -248,6 +259,79 @@ def prune_unreproduced_branches(tree: VesselTree, projections: Sequence[Projecti
     return tree, removed
 
 
+def covered_points(tree: VesselTree, projections: Sequence[Projection], reach_radii: float,
+                   apart_mm: float, by: np.ndarray | None = None) -> np.ndarray:
+    """(N,) per point of ``tree.points()``: in every view its projected disc (radius plus half a
+    pixel) overlaps the disc of a tree point more than ``apart_mm`` from it in 3D by the measure of
+    :func:`explained_shares` (its projection within the other's radius plus ``reach_radii`` of its
+    own). The points of its own vessel nearby, and of the branches at its junction, do not count;
+    with ``by`` ((N,) bool), only those points cover."""
+    from scipy.spatial import cKDTree
+
+    points, radius, _ = tree.points()
+    covered = np.ones(len(points), dtype=bool)
+    for projection in projections:
+        uv = projection.project(points)
+        rho = radius * max(projection.focal_lengths_px) / projection.depth_mm(points) + 0.5
+        pairs = cKDTree(uv).query_pairs(float((1.0 + reach_radii) * rho.max()), output_type="ndarray")
+        seen = np.zeros(len(points), dtype=bool)
+        if len(pairs):
+            i, j = pairs[:, 0], pairs[:, 1]
+            apart = np.linalg.norm(points[i] - points[j], axis=1) > apart_mm
+            if by is not None:
+                i_by_j, j_by_i = apart & by[j], apart & by[i]
+            else:
+                i_by_j = j_by_i = apart
+            gap = np.linalg.norm(uv[i] - uv[j], axis=1)
+            seen[i[i_by_j & (gap <= rho[j] + reach_radii * rho[i])]] = True
+            seen[j[j_by_i & (gap <= rho[i] + reach_radii * rho[j])]] = True
+        covered &= seen
+    return covered
+
+
+def contradicted_stretches(tree: VesselTree, projections: Sequence[Projection], own_points_mm: Sequence[np.ndarray],
+                           nearest_skeleton: Sequence[np.ndarray], *, tolerance_mm: float, reach_radii: float,
+                           apart_mm: float, min_length_mm: float) -> np.ndarray:
+    """(N,) per point of ``tree.points()``: it lies in a run of consecutive points of its branch, at
+    least ``min_length_mm`` of arc long, each of which some view's own matching puts elsewhere
+    (farther than ``tolerance_mm``, :func:`reproduced_points`) and other vessels cover in every
+    view (:func:`covered_points`): a stretch of a vessel of A matched to the wrong vessel of B
+    inside a branch, which no subtree rule can take out."""
+    points, _, _ = tree.points()
+    contradicted = _contradicted(points, projections, own_points_mm, nearest_skeleton, tolerance_mm)
+    suspect = contradicted & covered_points(tree, projections, reach_radii, apart_mm, by=~contradicted)
+    marked = np.zeros(len(points), dtype=bool)
+    offset = 0
+    for branch in tree.branches:
+        run = suspect[offset:offset + branch.n_points]
+        arc = branch.arc_length_mm
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], run.astype(np.int8), [0]])))
+        for first, stop in zip(edges[::2], edges[1::2]):  # runs [first, stop)
+            if arc[stop - 1] - arc[first] >= min_length_mm:
+                marked[offset + first:offset + stop] = True
+        offset += branch.n_points
+    return marked
+
+
+def _tube_segments(tree: VesselTree, keep: np.ndarray | None = None):
+    """(starts, ends, start radii, end radii) of the tree's tubes: between neighbouring points of a
+    branch and from a child's parent point to its first point; with ``keep`` ((N,) bool over
+    ``tree.points()``), only the segments whose two ends are kept."""
+    starts, ends, r0, r1 = [], [], [], []
+    offset = 0
+    for b in tree.branches:
+        kept = np.ones(b.n_points, dtype=bool) if keep is None else keep[offset:offset + b.n_points]
+        k = np.flatnonzero(kept[:-1] & kept[1:])
+        starts.append(b.points_mm[k]), ends.append(b.points_mm[k + 1])
+        r0.append(b.radius_mm[k]), r1.append(b.radius_mm[k + 1])
+        if b.parent is not None and kept[0]:
+            anchor = tree.branches[b.parent].points_mm[b.parent_point]
+            starts.append(anchor[None]), ends.append(b.points_mm[:1])
+            r0.append(b.radius_mm[:1]), r1.append(b.radius_mm[:1])
+        offset += b.n_points
+    return tuple(np.concatenate(x) for x in (starts, ends, r0, r1))
+
+
 def without_radius_spikes(tree: VesselTree, window_mm: float, ratio: float) -> VesselTree:
     """The tree with every radius above ``ratio`` times the median of its branch's radii within
     ``window_mm`` of arc either side brought down to that bound. The lumen of the tree method is
@@ -267,16 +351,7 @@ def without_radius_spikes(tree: VesselTree, window_mm: float, ratio: float) -> V
 
 def tree_lumen_points(tree: VesselTree, lattice: Lattice, margin_mm: float = 0.0) -> np.ndarray:
     """The lattice points inside the tree's tubes (within ``margin_mm`` of them), mm."""
-    starts, ends, r0, r1 = [], [], [], []
-    for b in tree.branches:
-        starts.append(b.points_mm[:-1]), ends.append(b.points_mm[1:])
-        r0.append(b.radius_mm[:-1]), r1.append(b.radius_mm[1:])
-        if b.parent is not None:
-            anchor = tree.branches[b.parent].points_mm[b.parent_point]
-            starts.append(anchor[None]), ends.append(b.points_mm[:1])
-            r0.append(b.radius_mm[:1]), r1.append(b.radius_mm[:1])
-    return lattice_points_in_tubes(np.concatenate(starts), np.concatenate(ends), np.concatenate(r0),
-                                   np.concatenate(r1), lattice, margin_mm=margin_mm)
+    return lattice_points_in_tubes(*_tube_segments(tree), lattice, margin_mm=margin_mm)
 
 
 def _correspondence_volume(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice,
@@ -381,24 +456,41 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         raise ReconstructionError("the tree method's volume holds fewer than two lattice points; use a finer lattice")
 
     start = time.perf_counter()
-    tree, tree_build = hull_tree(initial, lattice, projections, masks,
-                                 support_points_mm=support_points_mm, settings=settings.tree)
-    tree, pruned = prune_explained_branches(tree, projections, settings.explained_share,
-                                            settings.explained_reach_radii)
-    unreproduced = 0
-    if own is not None:  # the correspondences made the volume: their own matchings judge its branches
-        tree, unreproduced = prune_unreproduced_branches(
-            tree, projections, own, nearest, tolerance_mm=settings.reproduced_mm, share=settings.reproduced_share,
-            explained=settings.unreproduced_explained, reach_radii=settings.explained_reach_radii)
+
+    def fitted_and_pruned(volume: np.ndarray) -> tuple[VesselTree, TreeBuild, int, int]:
+        tree, tree_build = hull_tree(volume, lattice, projections, masks,
+                                     support_points_mm=support_points_mm, settings=settings.tree)
+        tree, pruned = prune_explained_branches(tree, projections, settings.explained_share,
+                                                settings.explained_reach_radii)
+        unreproduced = 0
+        if own is not None:  # the correspondences made the volume: their own matchings judge its branches
+            tree, unreproduced = prune_unreproduced_branches(
+                tree, projections, own, nearest, tolerance_mm=settings.reproduced_mm, share=settings.reproduced_share,
+                explained=settings.unreproduced_explained, reach_radii=settings.explained_reach_radii)
+        return tree, tree_build, pruned, unreproduced
+
+    tree, tree_build, pruned, unreproduced = fitted_and_pruned(initial)
+    tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
+    stretch_points = 0
+    if own is not None:  # ... and the stretches inside branches: out, and the tree built again through the hull
+        stretches = contradicted_stretches(tree, projections, own, nearest, tolerance_mm=settings.reproduced_mm,
+                                           reach_radii=settings.explained_reach_radii,
+                                           apart_mm=settings.stretch_apart_mm, min_length_mm=settings.stretch_min_mm)
+        rest = lattice_points_in_tubes(*_tube_segments(tree, ~stretches), lattice) if stretches.any() else initial
+        if stretches.any() and len(rest) >= 2:
+            stretch_points = int(stretches.sum())
+            tree, tree_build, more_pruned, more_unreproduced = fitted_and_pruned(rest)
+            pruned, unreproduced = pruned + more_pruned, unreproduced + more_unreproduced
     tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     timings["tree"] = time.perf_counter() - start
     say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed, "
-        f"{unreproduced} that the views' own matchings do not reproduce)")
+        f"{unreproduced} that the views' own matchings do not reproduce, {stretch_points} points of stretches "
+        f"they contradict)")
 
     start = time.perf_counter()
     lumen = tree_lumen_points(tree, lattice, settings.lumen_margin_steps * lattice.spacing_mm)
     timings["lumen"] = time.perf_counter() - start
     build = ModelBuild(pairs=pairs, matched_share=shares, skeleton_pixels=skeleton_pixels, explained_removed=pruned,
-                       unreproduced_removed=unreproduced, tree_build=tree_build,
+                       unreproduced_removed=unreproduced, stretch_points_removed=stretch_points, tree_build=tree_build,
                        timings_s=timings)
     return lumen, tree, build
