@@ -147,29 +147,36 @@ def _subtrees(tree: VesselTree) -> list[np.ndarray]:
     return [np.sort(m) for m in members]
 
 
+def _overlapping_discs(points: np.ndarray, radius: np.ndarray, projection: Projection,
+                       reach_radii: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs (i, j) of points whose projected discs (radius plus half a pixel) may overlap in
+    ``projection``, and per pair whether i's projection lies within j's disc radius plus
+    ``reach_radii`` times its own (``i_in_j``), and the other way round (``j_in_i``)."""
+    from scipy.spatial import cKDTree
+
+    uv = projection.project(points)
+    rho = radius * max(projection.focal_lengths_px) / projection.depth_mm(points) + 0.5
+    pairs = cKDTree(uv).query_pairs(float((1.0 + reach_radii) * rho.max()), output_type="ndarray")
+    i, j = (pairs[:, 0], pairs[:, 1]) if len(pairs) else (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    gap = np.linalg.norm(uv[i] - uv[j], axis=1)
+    return i, j, gap <= rho[j] + reach_radii * rho[i], gap <= rho[i] + reach_radii * rho[j]
+
+
 def explained_shares(tree: VesselTree, projections: Sequence[Projection], reach_radii: float) -> np.ndarray:
     """(B, V): per branch and view, the share of the points of the branch's subtree (the branch
     and its descendants) that the rest of the tree covers there. A point's disc is its projected
     radius plus half a pixel; the point is covered when its projection lies within the disc's
     radius of a point outside the subtree plus ``reach_radii`` times its own (0: its centre inside
     the other disc; 0.5: the two discs overlap by at least half its radius; 1: they touch)."""
-    from scipy.spatial import cKDTree
-
     points, radius, owner = tree.points()
     subtrees = _subtrees(tree)
     inside = [np.isin(owner, members) for members in subtrees]  # (B) per point: in the branch's subtree
     counts = np.array([np.count_nonzero(m) for m in inside])
     out = np.zeros((tree.n_branches, len(projections)))
     for v, projection in enumerate(projections):
-        uv = projection.project(points)
-        rho = radius * max(projection.focal_lengths_px) / projection.depth_mm(points) + 0.5
-        pairs = cKDTree(uv).query_pairs(float((1.0 + reach_radii) * rho.max()), output_type="ndarray")
-        if len(pairs) == 0:
+        i, j, i_in_j, j_in_i = _overlapping_discs(points, radius, projection, reach_radii)
+        if len(i) == 0:
             continue
-        i, j = pairs[:, 0], pairs[:, 1]
-        gap = np.linalg.norm(uv[i] - uv[j], axis=1)
-        i_in_j = gap <= rho[j] + reach_radii * rho[i]
-        j_in_i = gap <= rho[i] + reach_radii * rho[j]
         for b, members in enumerate(inside):
             covered = np.zeros(len(points), dtype=bool)
             covered[i[i_in_j & members[i] & ~members[j]]] = True
@@ -266,25 +273,15 @@ def covered_points(tree: VesselTree, projections: Sequence[Projection], reach_ra
     :func:`explained_shares` (its projection within the other's radius plus ``reach_radii`` of its
     own). The points of its own vessel nearby, and of the branches at its junction, do not count;
     with ``by`` ((N,) bool), only those points cover."""
-    from scipy.spatial import cKDTree
-
     points, radius, _ = tree.points()
+    by = np.ones(len(points), dtype=bool) if by is None else by
     covered = np.ones(len(points), dtype=bool)
     for projection in projections:
-        uv = projection.project(points)
-        rho = radius * max(projection.focal_lengths_px) / projection.depth_mm(points) + 0.5
-        pairs = cKDTree(uv).query_pairs(float((1.0 + reach_radii) * rho.max()), output_type="ndarray")
+        i, j, i_in_j, j_in_i = _overlapping_discs(points, radius, projection, reach_radii)
+        apart = np.linalg.norm(points[i] - points[j], axis=1) > apart_mm
         seen = np.zeros(len(points), dtype=bool)
-        if len(pairs):
-            i, j = pairs[:, 0], pairs[:, 1]
-            apart = np.linalg.norm(points[i] - points[j], axis=1) > apart_mm
-            if by is not None:
-                i_by_j, j_by_i = apart & by[j], apart & by[i]
-            else:
-                i_by_j = j_by_i = apart
-            gap = np.linalg.norm(uv[i] - uv[j], axis=1)
-            seen[i[i_by_j & (gap <= rho[j] + reach_radii * rho[i])]] = True
-            seen[j[j_by_i & (gap <= rho[i] + reach_radii * rho[j])]] = True
+        seen[i[i_in_j & apart & by[j]]] = True
+        seen[j[j_in_i & apart & by[i]]] = True
         covered &= seen
     return covered
 
