@@ -310,3 +310,37 @@ def test_straight_tips_lays_hooked_leaf_ends_and_the_roots_start_on_their_lines(
     check(side_now, side, side_line, near_end, len(side_line) - 1 - int(near_end.sum()), 1.0, np.array([0, 1.0, 0]))
     if start_child:
         np.testing.assert_array_equal(arrays.points[arrays.span(2)], before[arrays.span(2)])  # no hook
+
+
+def test_unseen_stubs_are_cut_where_no_view_sees_them():
+    # a trunk of 61 points with a side branch from point 40 and a second branch from point 10: the
+    # trunk's tail past point 40 (20 points) is its stub. Hand-worked: no view sees 15 of its 20
+    # points (75 %, the share) -> cut, the trunk ends at point 40 and both children keep their
+    # points and junctions; with a 16th point seen by one view (70 % unseen) it stays. A branch
+    # with no child has no stub, and the side branch, seen nowhere, is not touched (a leaf: the
+    # leaf step's business).
+    from angiohull.reconstruction.vessel_tree import _Arrays
+
+    trunk = _line((0, 0, 0), (30, 0, 0))
+    side = _line(trunk[40], trunk[40] + (0, 12, 0))
+    early = _line(trunk[10], trunk[10] + (0, -6, 0))
+    tree = VesselTree((Branch(trunk, 1.0, name="trunk"), Branch(side, 0.8, parent=0, parent_point=40, name="side"),
+                       Branch(early, 0.6, parent=0, parent_point=10, name="early")))
+    arrays = _Arrays.of(tree)
+    n = len(arrays.points)
+    seen = np.ones((3, n), dtype=bool)
+    stub = np.arange(41, 61)
+    seen[:, stub[:15]] = False  # 15 of the stub's 20 points unseen in every view
+    seen[1, stub[15:]] = True
+    seen[:, arrays.span(1)] = False  # the side branch: seen nowhere
+    cut, count = arrays.without_unseen_stubs(seen, 0.75)
+    assert count == 20
+    assert list(cut.counts) == [41, len(side), len(early)]
+    np.testing.assert_array_equal(cut.points[cut.span(0)], trunk[:41])
+    np.testing.assert_array_equal(cut.points[cut.span(1)], side)
+    np.testing.assert_array_equal(cut.points[cut.span(2)], early)
+    assert cut.parents == [None, 0, 0] and cut.parent_points == [None, 40, 10]
+    assert cut.tree().branches[0].n_points == 41
+    seen[2, stub[0]] = True  # now 14 of 20 unseen: 70 % < 75 %
+    same, count = arrays.without_unseen_stubs(seen, 0.75)
+    assert count == 0 and same is arrays

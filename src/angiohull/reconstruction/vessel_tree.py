@@ -38,11 +38,14 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    The point moves by the least-squares step that puts its projection on the middles of the
    seeing views' runs (along each view's normal; the step along the 3D tangent is held at zero),
    at most one radius per iteration, then the branches are smoothed again (``smoothing_mm / 2``).
-   Before the last iteration, with three views or more, leaf branches that no view sees over
-   ``max_unseen_share`` of their points are removed, repeatedly (spurs, stubs at a junction,
-   phantom pieces the hull kept where vessels cross in every view). With two views a phantom and
-   the true branch it mirrors overlap each other in both views, nothing tells them apart, and
-   nothing is removed.
+   Before the last iteration, with three views or more, the tails of branches past their last
+   child (stubs) that no view sees over ``max_unseen_share`` of their points are cut off: where
+   the skeleton ran a branch on beside the vessel and made the vessel's continuation a child, the
+   stub hides that child in every view (on the authors' 48 studies it took true side branches
+   with it). Then leaf branches that no view sees over that share are removed, repeatedly (spurs,
+   stubs at a junction, phantom pieces the hull kept where vessels cross in every view). With two
+   views a phantom and the true branch it mirrors overlap each other in both views, nothing tells
+   them apart, and nothing is removed.
 4. **Root.** The skeleton's root is its widest tip by the voxels' depth, which the occupancy
    gives only coarsely, and the stub from the ostium to the first side branch can be short enough
    to go as a spur. Once the radii are fitted, the ostium is the tip (the root's start or a
@@ -166,6 +169,7 @@ class TreeBuild:
     rerooted_mm: float  # how far the root moved to the ostium after the fit (0: it stayed)
     junctions_moved_mm: tuple[float, ...]  # per child whose start moved onto its parent's axis: how far (mm)
     timings_s: dict[str, float]
+    unseen_stub_points_removed: int = 0  # points of branch tails past the last child that no view saw, cut off
 
 
 # -- branch arrays -----------------------------------------------------------------------------
@@ -233,6 +237,25 @@ class _Arrays:
         for child, p in enumerate(self.parents):
             if p == parent:
                 self.points[self.starts[child]] = self.points[self.anchor(child)]
+
+    def without_unseen_stubs(self, seen: np.ndarray, share: float) -> tuple["_Arrays", int]:
+        """The arrays with each branch's tail past its last child's junction (a stub) cut off where
+        no view sees over ``share`` of the tail's points. Returns the arrays and the points cut."""
+        unseen = seen.sum(axis=0) == 0
+        last = [max(c) if c else None for c in self.child_points()]
+        keep = np.ones(len(self.points), dtype=bool)
+        counts = self.counts.copy()
+        for b, j in enumerate(last):
+            if j is None or j >= self.counts[b] - 1:
+                continue
+            tail = slice(int(self.starts[b] + j + 1), int(self.starts[b] + self.counts[b]))
+            if unseen[tail].mean() >= share:
+                keep[tail] = False
+                counts[b] = j + 1
+        if keep.all():
+            return self, 0
+        return (_Arrays(self.points[keep], self.radius[keep], np.cumsum(counts) - counts, counts, list(self.parents),
+                        list(self.parent_points), list(self.names)), int((~keep).sum()))
 
     def without_unseen_leaves(self, seen: np.ndarray, share: float) -> tuple["_Arrays", int]:
         """The arrays without the leaf branches (no child) that no view sees over at least
@@ -374,6 +397,13 @@ def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings) ->
         out[k, i[hit]] = True
         out[k, j[hit]] = True
     return out
+
+
+def _seen(sections: _Sections, arrays: "_Arrays", settings: TreeSettings) -> np.ndarray:
+    """(V, N) bool: the view measures the point's cross-section (a run found, no overlap, not too
+    foreshortened; module notes, step 3)."""
+    return (sections.found & ~_overlaps(sections, arrays, settings)
+            & (sections.foreshortening >= settings.min_foreshortening))
 
 
 def _combine_radius(sections: _Sections, seen: np.ndarray, previous: np.ndarray) -> np.ndarray:
@@ -849,16 +879,22 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     arrays.smooth(settings.smoothing_mm, step)
     held = np.zeros(len(arrays.points), dtype=bool)
     seen = np.zeros((len(projections), len(arrays.points)), dtype=bool)
-    removed = 0
+    removed = stub_points = 0
     for iteration in range(settings.iterations):
         if iteration == settings.iterations - 1 and len(projections) >= 3:
             # the last fit without the branches no view sees; with two views a phantom and the true
             # branch it mirrors overlap each other in both, and nothing tells them apart
+            # first the stubs (a branch's tail past its last child, where the skeleton ran the branch
+            # on beside the vessel and made the vessel's continuation the child): the child they
+            # hide is seen again once they go
+            arrays, stub_points = arrays.without_unseen_stubs(seen, settings.max_unseen_share)
+            if stub_points:
+                seen = _seen(_sections(arrays.points, arrays.tangents(), arrays.radius, projections, images,
+                                       settings.profile_step_px), arrays, settings)
             arrays, removed = arrays.without_unseen_leaves(seen, settings.max_unseen_share)
         tangents = arrays.tangents()
         sections = _sections(arrays.points, tangents, arrays.radius, projections, images, settings.profile_step_px)
-        overlap = _overlaps(sections, arrays, settings)
-        seen = sections.found & ~overlap & (sections.foreshortening >= settings.min_foreshortening)
+        seen = _seen(sections, arrays, settings)
         held = seen.sum(axis=0) == 0
         arrays.radius = _combine_radius(sections, seen, arrays.radius)
         _interpolate_held(arrays, held)
@@ -878,5 +914,6 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     build = TreeBuild(skeleton=skeleton_info, points_fitted=len(arrays.points), unseen_leaves_removed=removed,
                       seen_share=tuple(float(x) for x in seen.mean(axis=1)), unseen_points=int(held.sum()),
                       tips_moved_mm=tuple(moved), rerooted_mm=rerooted_mm,
-                      junctions_moved_mm=tuple(junctions_moved), timings_s=timings)
+                      junctions_moved_mm=tuple(junctions_moved), timings_s=timings,
+                      unseen_stub_points_removed=stub_points)
     return tree, build
