@@ -344,3 +344,36 @@ def test_unseen_stubs_are_cut_where_no_view_sees_them():
     seen[2, stub[0]] = True  # now 14 of 20 unseen: 70 % < 75 %
     same, count = arrays.without_unseen_stubs(seen, 0.75)
     assert count == 0 and same is arrays
+
+
+def test_a_foreshortened_straight_branch_does_not_hide_itself_but_a_hairpin_does():
+    # one view, branches of radius 1 mm. A straight 20 mm branch at 60 degrees to the image plane
+    # (foreshortening 0.5): its points 3-4.7 mm apart along it lie closer in the image than their
+    # two discs reach (0.5 * px_per_mm * arc < 2 * px_per_mm + 1.5 px), so the loop test on the 3D
+    # arc alone calls them a loop crossing itself; the image path between two points of a straight
+    # projected line is their image distance, so with image_path=True none is hidden. A hairpin in
+    # the image plane (legs 1.6 mm apart joined by a half circle) hides its legs either way.
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _overlaps, _sections
+
+    view = _views()[0]
+    into = view.camera_centre_mm / np.linalg.norm(view.camera_centre_mm)  # along the beam
+    across = np.cross(into, [0.0, 0.0, 1.0])
+    across /= np.linalg.norm(across)
+    up = np.cross(across, into)
+    direction = np.cos(np.radians(60)) * across + np.sin(np.radians(60)) * into
+    straight = _line(-10 * direction, 10 * direction)
+    legs = 10 * np.linspace(0, 1, 21)[:, None] * up
+    turn = np.linspace(0, np.pi, 11)[1:-1]
+    bend = legs[-1] + 0.8 * (np.sin(turn)[:, None] * up + (1 - np.cos(turn))[:, None] * across)
+    hairpin = np.concatenate([legs, bend, legs[::-1] + 1.6 * across]) + 30 * across
+    for points, loop in ((straight, False), (hairpin, True)):
+        arrays = _Arrays.of(VesselTree((Branch(points, 1.0, name="b"),)))
+        sections = _sections(arrays.points, arrays.tangents(), arrays.radius, [view],
+                             [np.zeros(view.image_shape, np.float32)], 0.5)
+        np.testing.assert_allclose(sections.foreshortening[0, 5:-5], 0.5 if not loop else 1.0, atol=0.03)
+        old = _overlaps(sections, arrays, TREE_SETTINGS)[0]
+        new = _overlaps(sections, arrays, TREE_SETTINGS, image_path=True)[0]
+        if loop:
+            assert old[:15].all() and new[:15].all()  # the first leg: the other leg lies 1.6 mm away
+        else:
+            assert old.mean() > 0.8 and not new.any()
