@@ -6,7 +6,7 @@ from PIL import Image
 from scipy import ndimage as ndi
 
 from angiohull.reconstruction import skeletonise
-from angiohull.thinning import guo_hall_thin
+from angiohull.thinning import guo_hall_thin, guo_hall_thin_many
 
 
 def _reference_thin(mask: np.ndarray, keep_edge: bool) -> np.ndarray:
@@ -56,6 +56,18 @@ def _blobs(seed: int, shape=(40, 56), touching_edge=False) -> np.ndarray:
 def test_equals_the_per_pixel_rule_on_random_images(seed, keep_edge):
     mask = _blobs(seed, touching_edge=seed % 2 == 0)
     np.testing.assert_array_equal(guo_hall_thin(mask, keep_edge=keep_edge), _reference_thin(mask, keep_edge))
+
+
+@pytest.mark.parametrize("keep_edge", [False, True])
+def test_several_images_at_once_equal_the_per_pixel_rule_on_each(keep_edge):
+    # images of different shapes, one touching the edges, one empty, one a single pixel wide: thinned
+    # together, each comes out as the per-pixel rule thins it alone
+    masks = [_blobs(10, touching_edge=True), _blobs(11, shape=(23, 71)), np.zeros((9, 9), bool),
+             _blobs(12, shape=(64, 30), touching_edge=True), np.eye(12, dtype=bool)]
+    for mask, skeleton in zip(masks, guo_hall_thin_many(masks, keep_edge=keep_edge)):
+        assert skeleton.shape == mask.shape and skeleton.dtype == bool
+        np.testing.assert_array_equal(skeleton, _reference_thin(mask, keep_edge))
+    assert guo_hall_thin_many([]) == []
 
 
 def test_hand_worked_cases():

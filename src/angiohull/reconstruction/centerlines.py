@@ -7,7 +7,7 @@ from typing import Sequence
 import numpy as np
 
 from ..geometry import Projection
-from ..thinning import guo_hall_thin
+from ..thinning import guo_hall_thin, guo_hall_thin_many
 from .engines import mask_pixel_centres
 from .nearest import nearest_with_ties
 
@@ -54,10 +54,12 @@ def extract_centerlines(points_mm: np.ndarray, projections: Sequence[Projection]
     """
     points = np.asarray(points_mm, dtype=np.float64)
     index = np.arange(len(points))  # the candidates, as indices into points
-    for projection, mask in zip(projections, masks):
+    # every view's skeleton at once (as skeletonise thins each): one thinning pass over them all
+    skeletons = guo_hall_thin_many(masks, keep_edge=True) if len(index) else []
+    for projection, skeleton in zip(projections, skeletons):
         if len(index) == 0:
             break
-        skeleton_uv = mask_pixel_centres(skeletonise(mask))
+        skeleton_uv = mask_pixel_centres(skeleton)
         if len(skeleton_uv) == 0:
             return points[:0]
         _, nearest = nearest_with_ties(projection.project(points[index]), skeleton_uv, TIE_PX, index)
