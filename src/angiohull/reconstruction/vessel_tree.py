@@ -44,10 +44,9 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    the image path between them is longer than the two projected radii plus
    ``overlap_margin_px``: a loop, not a straight stretch that the view foreshortens; the arc rule
    alone hides every point of a branch of radius 1 mm whose foreshortening is below about 0.77):
-   where
-   the skeleton ran a branch on beside the vessel and made the vessel's continuation a child, the
-   stub hides that child in every view (on the authors' 48 studies it took true side branches
-   with it). Then leaf branches that no view sees over that share are removed, repeatedly (spurs,
+   where the skeleton ran a branch on beside the vessel and made the vessel's continuation a
+   child, the stub hides that child in every view (on the authors' 48 studies it took true side
+   branches with it). Then leaf branches that no view sees over that share are removed, repeatedly (spurs,
    stubs at a junction, phantom pieces the hull kept where vessels cross in every view). With two
    views a phantom and the true branch it mirrors overlap each other in both views, nothing tells
    them apart, and nothing is removed.
