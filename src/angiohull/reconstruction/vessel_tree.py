@@ -402,14 +402,14 @@ def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *,
         du, dv = np.take(u, i) - np.take(u, j), np.take(v, i) - np.take(v, j)  # np.linalg.norm's numbers, faster
         near_2d = np.flatnonzero(np.sqrt(du * du + dv * dv) < np.take(rho, i) + np.take(rho, j) + settings.overlap_margin_px)
         i, j = i[near_2d], j[near_2d]
-        # along one branch: a loop crossing itself, where the image path between the two points
-        # is longer than their discs reach (a straight, foreshortened stretch's points are near
-        # in the image but so is the path between them)
-        step = np.linalg.norm(np.diff(sections.uv[k], axis=0), axis=1)
-        step[arrays.starts[1:] - 1] = 0.0  # no step from one branch's last point to the next one's first
-        image_arc = np.concatenate([[0.0], np.cumsum(step)])
         loop = np.abs(arc[i] - arc[j]) > radius[i] + radius[j] + settings.overlap_margin_mm
         if image_path:
+            # along one branch: a loop crossing itself, where the image path between the two points
+            # is longer than their discs reach (a straight, foreshortened stretch's points are near
+            # in the image but so is the path between them)
+            step = np.linalg.norm(np.diff(sections.uv[k], axis=0), axis=1)
+            step[arrays.starts[1:] - 1] = 0.0  # no step from one branch's last point to the next one's first
+            image_arc = np.concatenate([[0.0], np.cumsum(step)])
             loop &= np.abs(image_arc[i] - image_arc[j]) > rho[i] + rho[j] + settings.overlap_margin_px
         hit = (owner[i] != owner[j]) | loop
         out[k, i[hit]] = True
