@@ -15,8 +15,9 @@ the XCAT vessel (``../shared/data/xcat-single-vessel``, when present: every pair
 30 degrees apart or more; its true centerline has no radii, so the centerline scores only, also
 after the best common translation of the truth, as in benchmarks/vessel_tree.py) and the authors'
 48 studies (``../shared/benchmarks/peer-synthetic``, when present: their masks and views, Dice3D and
-Chamfer against their ``gt.npy``; with their matrices as given and moved by -0.5 px, see :func:`_peer`). Each is reconstructed with ``hull`` (paper
-preset, K = 100), ``hull`` (refined preset, K = 256) and ``tree`` (K = 256): Dice3D, Chamfer, the
+Chamfer against their ``gt.npy``; with their matrices as given and moved by -0.5 px, see
+:func:`_peer`). Each is reconstructed with ``hull`` (paper preset, K = 100), ``hull`` (refined
+preset, K = 256) and ``tree`` (K = 256): Dice3D, Chamfer, the
 tree scores of :func:`angiohull.metrics.tree.tree_scores` (centerline mean distance, Ot(1 mm)
 both ways, radius MAE, branch recall and precision) and the reconstruction time.
 

@@ -898,6 +898,13 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     held = np.zeros(len(arrays.points), dtype=bool)
     seen = np.zeros((len(projections), len(arrays.points)), dtype=bool)
     removed = stub_points = 0
+
+    def measure(current: _Arrays) -> tuple[np.ndarray, _Sections]:
+        tangents = current.tangents()
+        return tangents, _sections(current.points, tangents, current.radius, projections, images,
+                                   settings.profile_step_px)
+
+    measured: tuple = (None,)
     for iteration in range(settings.iterations):
         if iteration == settings.iterations - 1 and len(projections) >= 3:
             # the last fit without the branches no view sees; with two views a phantom and the true
@@ -906,15 +913,15 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
             # than their discs reach: a loop; see _overlaps). First the stubs, a branch's tail past
             # its last child, where the skeleton ran the branch on beside the vessel and made the
             # vessel's continuation the child: the child they hide is seen again once they go
-            visible = _seen(_sections(arrays.points, arrays.tangents(), arrays.radius, projections, images,
-                                      settings.profile_step_px), arrays, settings, image_path=True)
+            measured = arrays, *measure(arrays)
+            visible = _seen(measured[2], arrays, settings, image_path=True)
             arrays, stub_points = arrays.without_unseen_stubs(visible, settings.max_unseen_share)
             if stub_points:
-                visible = _seen(_sections(arrays.points, arrays.tangents(), arrays.radius, projections, images,
-                                          settings.profile_step_px), arrays, settings, image_path=True)
+                measured = arrays, *measure(arrays)
+                visible = _seen(measured[2], arrays, settings, image_path=True)
             arrays, removed = arrays.without_unseen_leaves(visible, settings.max_unseen_share)
-        tangents = arrays.tangents()
-        sections = _sections(arrays.points, tangents, arrays.radius, projections, images, settings.profile_step_px)
+        # the cross-sections of the removals serve the fit when nothing was removed
+        tangents, sections = measured[1:] if measured[0] is arrays else measure(arrays)
         seen = _seen(sections, arrays, settings)
         held = seen.sum(axis=0) == 0
         arrays.radius = _combine_radius(sections, seen, arrays.radius)
