@@ -211,6 +211,27 @@ def test_skeleton_graph_prunes_spurs_joins_gaps_and_roots_at_the_widest_tip():
         tree_from_skeleton(np.zeros((3, 3, 3), bool), np.zeros((3, 3, 3)), origin_mm=np.zeros(3), spacing_mm=1.0)
 
 
+def test_spurs_go_shortest_first_and_do_not_eat_a_short_wide_trunk():
+    # a left main: 14 voxels of radius 3 from the ostium (x = 0) to where it forks, with a one-voxel
+    # bump 6 voxels in. Its end segment (6 voxels, up to the bump) is as long as two junction radii:
+    # removed together with the bump (the old rule, every spur of a round at once) the trunk lost
+    # its first 6 mm; the bump goes first, and the trunk is then one 14-voxel segment, no spur.
+    skeleton = np.zeros((50, 50, 5), dtype=bool)
+    _voxel_line(skeleton, (2, 25, 2), (16, 25, 2))  # the trunk
+    _voxel_line(skeleton, (8, 26, 2), (8, 26, 2))  # the bump, 6 voxels from the ostium
+    _voxel_line(skeleton, (17, 26, 2), (40, 45, 2))  # two daughters from the fork at x = 16
+    _voxel_line(skeleton, (17, 24, 2), (40, 5, 2))
+    radius = np.where(skeleton, 1.5, 0.0)
+    radius[2:17, 25, 2] = 3.0
+    radius[8, 26, 2] = 0.8
+    tree, info = tree_from_skeleton(skeleton, radius, origin_mm=np.zeros(3), spacing_mm=1.0)
+    assert info.spurs_removed == 1
+    assert tree.n_branches == 2
+    np.testing.assert_allclose(tree.root.points_mm[0], [2, 25, 2])  # the ostium kept
+    fork = tree.root.points_mm[tree.branches[1].parent_point]
+    np.testing.assert_allclose(fork, [16, 25, 2])
+
+
 def test_teasar_paths_reach_every_end_of_a_thick_y():
     # a voxelised Y of radius 3 voxels: thinning must not lose a limb, paths reach each end
     grid = np.indices((70, 50, 14)).reshape(3, -1).T.astype(float)

@@ -15,8 +15,12 @@ volume) and a radius estimate per voxel (for example the volume's distance trans
    preset dropped is still present); other parts are dropped and counted.
 3. **Spurs.** A terminal segment (from a tip to the first junction) whose length is at most
    ``spur_radii`` times the radius at its junction is a bump of the surface, not a vessel: it is
-   removed, and the test repeated until no spur is left (each removal can make a new junction a
-   plain point of a longer segment).
+   removed, and the test repeated until no spur is left. The shortest (in junction radii) go
+   first: a removal can make its junction a plain point of a longer segment, so within a round a
+   spur is left for the next one when an earlier removal changed its junction (or the far end of a
+   segment through that junction). Removed all at once, a short wide trunk (a left main) whose
+   skeleton has a small bump near the ostium lost the stretch up to the bump as a spur of the
+   bump's junction.
 4. **Root.** The tip whose first ``root_window_mm`` of segment have the largest mean radius is the
    ostium (the proximal end of a coronary tree is its widest end).
 5. **Branches.** From the root, a branch follows the graph; at a junction it continues into the
@@ -228,31 +232,39 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
     if int(alive.sum()) < 2:
         raise TreeError("the skeleton's largest part is a single voxel; a vessel tree needs at least two")
 
-    # 3. spurs
+    # 3. spurs, the shortest (in junction radii) first: a removal can make its junction a plain
+    # point, and a segment through it longer than a spur, so a spur at a junction that a removal
+    # changed (or at the far end of a segment through that junction) waits for the next round
     while True:
         segments = _segments(neighbours, alive)
         degree = np.array([len(nb) for nb in neighbours])
-        removed = False
+        spurs = []
+        through: dict[int, list[int]] = {}  # junction -> the far ends of the segments that meet there
         for path in segments:
+            through.setdefault(path[0], []).append(path[-1])
+            through.setdefault(path[-1], []).append(path[0])
             tip_first = degree[path[0]] == 1 and degree[path[-1]] >= 3
             tip_last = degree[path[-1]] == 1 and degree[path[0]] >= 3
             if not (tip_first or tip_last):
                 continue
             junction = path[-1] if tip_first else path[0]
-            if _path_length(points, path) <= settings.spur_radii * radius[junction]:
-                if degree[junction] < 3:  # an earlier removal in this round changed it
-                    continue
-                inner = path[:-1] if tip_first else path[1:]
-                for v in inner:
-                    for w in neighbours[v]:
-                        neighbours[w].remove(v)
-                    neighbours[v] = []
-                    alive[v] = False
-                degree = np.array([len(nb) for nb in neighbours])
-                info.spurs_removed += 1
-                removed = True
-        if not removed:
+            ratio = _path_length(points, path) / radius[junction]
+            if ratio <= settings.spur_radii:
+                spurs.append((ratio, junction, path[:-1] if tip_first else path[1:]))
+        if not spurs:
             break
+        changed: set[int] = set()
+        for _, junction, inner in sorted(spurs, key=lambda s: s[0]):
+            if junction in changed:
+                continue
+            changed.add(junction)
+            changed.update(through[junction])
+            for v in inner:
+                for w in neighbours[v]:
+                    neighbours[w].remove(v)
+                neighbours[v] = []
+                alive[v] = False
+            info.spurs_removed += 1
 
     # 4. root: the widest tip
     degree = np.array([len(nb) for nb in neighbours])
