@@ -232,6 +232,48 @@ def test_spurs_go_shortest_first_and_do_not_eat_a_short_wide_trunk():
     np.testing.assert_allclose(fork, [16, 25, 2])
 
 
+def _straight_bridge(part_mm, tree_mm):
+    """A bridge along the straight line between the closest voxels of the part and the tree."""
+    from scipy.spatial import cKDTree
+
+    distance, nearest = cKDTree(tree_mm).query(part_mm)
+    i = int(np.argmin(distance))
+    a, b = part_mm[i], tree_mm[nearest[i]]
+    return np.linspace(a, b, int(np.ceil(distance[i])) + 1)
+
+
+@pytest.mark.parametrize("order", ["nearest", "largest"])
+def test_parts_join_the_tree_nearest_first_through_a_small_piece(order):
+    from angiohull.tree.skeleton import SkeletonSettings
+
+    # the trunk T (59 voxels, wide start); a 4-voxel piece S 6 voxels above it at x = 30; and L,
+    # the second largest part (49 voxels), 6 voxels above S, which turns and comes back down to
+    # 10 voxels above the trunk at x = 45. Gaps of 6 need a bridge (radius 1: 1 + 1 + 3 = 5).
+    # Nearest first: S joins (6), then L through S (6, less than its 10 to the trunk). Largest
+    # first: L joins the trunk directly at x = 45, and S later, as a separate child.
+    skeleton = np.zeros((62, 50, 10), dtype=bool)
+    _voxel_line(skeleton, (0, 10, 5), (59, 10, 5))  # T
+    _voxel_line(skeleton, (30, 16, 5), (30, 20, 5))  # S
+    _voxel_line(skeleton, (30, 26, 5), (30, 40, 5))  # L
+    _voxel_line(skeleton, (30, 40, 5), (45, 40, 5))
+    _voxel_line(skeleton, (45, 40, 5), (45, 20, 5))
+    radius = np.where(skeleton, 1.0, 0.0)
+    radius[0:5, 10, 5] = 3.0
+    tree, info = tree_from_skeleton(skeleton, radius, origin_mm=np.zeros(3), spacing_mm=1.0,
+                                    settings=SkeletonSettings(join_order=order), bridge=_straight_bridge)
+    points = np.concatenate([b.points_mm for b in tree.branches])
+    across_at_45 = np.any(np.all(np.isclose(points, [45, 15, 5]), axis=1))
+    assert info.parts_joined == 2 and info.parts_bridged == 2 and info.parts_dropped == 0
+    children_at = sorted(float(tree.root.points_mm[b.parent_point][0]) for b in tree.branches[1:] if b.parent == 0)
+    if order == "nearest":
+        assert not across_at_45 and children_at == [30.0]
+        assert tree.n_branches == 2
+    else:
+        assert across_at_45 and children_at == [30.0, 45.0]
+    with pytest.raises(ValueError, match="join_order"):
+        SkeletonSettings(join_order="smallest")
+
+
 def test_teasar_paths_reach_every_end_of_a_thick_y():
     # a voxelised Y of radius 3 voxels: thinning must not lose a limb, paths reach each end
     grid = np.indices((70, 50, 14)).reshape(3, -1).T.astype(float)

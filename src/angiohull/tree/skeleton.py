@@ -7,12 +7,19 @@ volume) and a radius estimate per voxel (for example the volume's distance trans
    (1, sqrt 2 or sqrt 3 voxels). Thinning leaves small cycles where branches meet (three or four
    mutually adjacent voxels) and, where the volume has a hole, larger ones; the minimum spanning
    tree with edge weight ``length / (r_a + r_b)`` removes every cycle at its thinnest edge.
-2. **Gaps.** The largest connected part (by length) is the tree. Other parts are joined to it,
-   largest first, by a straight edge between their closest voxels when that gap is at most
+2. **Gaps.** The largest connected part (by length) is the tree. Other parts are joined to it
+   by a straight edge between their closest voxels when that gap is at most
    ``r_a + r_b + max_gap_voxels`` voxels (the two skeleton ends recede by about a radius each from
    a hole in the volume). A longer gap is bridged by the path a caller's ``bridge`` finds (the
    reconstruction searches the carved hull before refinement, where a vessel piece the refined
-   preset dropped is still present); other parts are dropped and counted.
+   preset dropped is still present); other parts are dropped and counted. With ``join_order``
+   ``"nearest"`` (the default) the part that costs least joins next: a straight join costs its
+   gap, a bridge its path's length (never less than the gap, so bridges are only sought for the
+   parts whose gap is below the best cost found so far), and the gaps are measured again after
+   each join. With ``"largest"`` the parts join largest first, each to the tree as it is then: a
+   part whose way to the tree runs through a smaller part not joined yet is bridged the long way
+   round (on a generated left tree, the distal circumflex went 72 mm through the hull onto the
+   LAD, as the refined hull had dropped a few millimetres of the circumflex twice).
 3. **Spurs.** A terminal segment (from a tip to the first junction) whose length is at most
    ``spur_radii`` times the radius at its junction is a bump of the surface, not a vessel: it is
    removed, and the test repeated until no spur is left. The shortest (in junction radii) go
@@ -59,6 +66,11 @@ class SkeletonSettings:
     max_gap_voxels: float = 3.0  # parts are joined across gaps up to r_a + r_b + this many voxels
     root_window_mm: float = 3.0  # the root is the tip with the widest first root_window_mm
     direction_window_mm: float = 3.0  # directions and radii at a junction are taken over this length
+    join_order: str = "nearest"  # parts join the tree nearest first, or "largest" first (module notes)
+
+    def __post_init__(self) -> None:
+        if self.join_order not in ("nearest", "largest"):
+            raise ValueError(f"SkeletonSettings.join_order must be 'nearest' or 'largest', got {self.join_order!r}")
 
 
 @dataclass
@@ -189,27 +201,53 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
     extra_heads, extra_tails = [], []
     extra_points: list[np.ndarray] = []
     extra_radius: list[np.ndarray] = []
-    for p in order[1:]:
-        members = np.flatnonzero(part == p)
+    pending = {int(p): np.flatnonzero(part == p) for p in order[1:]}
+    dropped: list[tuple[int, np.ndarray]] = []
+    reach = settings.max_gap_voxels * spacing_mm
+    while pending:
+        # the part nearest to the tree joins first (joining the largest first, a part whose gap to
+        # the tree's vessel lies in a smaller part not joined yet went the long way round through
+        # the support hull, onto another vessel); a bridge costs its path's length, at least the gap
         kept = np.flatnonzero(alive[:n])
-        distance, nearest = cKDTree(points[kept]).query(points[members])
-        i = int(np.argmin(distance))
-        a, b = members[i], kept[nearest[i]]
-        if distance[i] <= radius[a] + radius[b] + settings.max_gap_voxels * spacing_mm:
+        kept_tree = cKDTree(points[kept])
+        gaps = []
+        if settings.join_order == "largest":  # the largest part still pending, whatever its gap
+            first = next(p for p in order[1:].tolist() if p in pending)
+            candidates = {first: pending[first]}
+        else:
+            candidates = pending
+        for p, members in candidates.items():
+            distance, nearest = kept_tree.query(points[members])
+            i = int(np.argmin(distance))
+            gaps.append((float(distance[i]), p, members[i], kept[nearest[i]]))
+        gaps.sort(key=lambda g: (g[0], g[1]))
+        best = None  # (cost, part, a, b, inner path or None)
+        for gap, p, a, b in gaps:
+            if best is not None and gap >= best[0]:
+                break
+            if gap <= radius[a] + radius[b] + reach:
+                best = (gap, p, a, b, None)
+                break  # a straight join costs its gap, the least of what is left
+            path = None if bridge is None else bridge(points[pending[p]], points[kept])
+            if path is None or len(path) < 2:
+                continue
+            path = np.asarray(path, dtype=np.float64)
+            length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+            if best is None or length < best[0]:
+                members = pending[p]
+                a = members[int(np.argmin(np.linalg.norm(points[members] - path[0], axis=1)))]
+                b = kept[int(np.argmin(np.linalg.norm(points[kept] - path[-1], axis=1)))]
+                best = (length, p, a, b, path[1:-1])
+        if best is None:
+            if settings.join_order == "largest" and len(candidates) == 1 and len(pending) > 1:
+                dropped.append((first, pending.pop(first)))  # out of reach; the next largest may join
+                continue
+            break
+        _, p, a, b, inner = best
+        if inner is None:
             extra_heads.append(a)
             extra_tails.append(b)
         else:
-            path = None if bridge is None else bridge(points[members], points[kept])
-            if path is None or len(path) < 2:
-                info.parts_dropped += 1
-                info.voxels_dropped += len(members)
-                info.length_dropped_mm += float(part_length[p])
-                info.longest_dropped_mm = max(info.longest_dropped_mm, float(part_length[p]))
-                continue
-            path = np.asarray(path, dtype=np.float64)
-            a = members[int(np.argmin(np.linalg.norm(points[members] - path[0], axis=1)))]
-            b = kept[int(np.argmin(np.linalg.norm(points[kept] - path[-1], axis=1)))]
-            inner = path[1:-1]
             first = n + sum(len(x) for x in extra_points)
             chain = [a, *range(first, first + len(inner)), b]
             extra_points.append(inner)
@@ -217,8 +255,13 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
             extra_heads.extend(chain[:-1])
             extra_tails.extend(chain[1:])
             info.parts_bridged += 1
-        alive[members] = True
+        alive[pending.pop(p)] = True
         info.parts_joined += 1
+    for p, members in [*dropped, *pending.items()]:  # out of reach of the tree
+        info.parts_dropped += 1
+        info.voxels_dropped += len(members)
+        info.length_dropped_mm += float(part_length[p])
+        info.longest_dropped_mm = max(info.longest_dropped_mm, float(part_length[p]))
     if extra_points:
         added = sum(len(x) for x in extra_points)
         points = np.vstack([points, *extra_points])

@@ -16,7 +16,9 @@ views' 2D centerlines and widths say where the vessels are. Steps:
 3. **Tubes**: each matched pixel, with the radius both views show, is a ball, joined by a tube
    to its matched neighbour; their lattice points form a volume.
 4. **Tree and fit**: that volume's vessel tree (:func:`..vessel_tree.hull_tree`: skeleton, graph,
-   pieces joined through the visual hull, then centres and radii fitted to every view's mask,
+   pieces joined through the visual hull, largest first for the tubes of two views'
+   correspondences (``correspondence_join_order``: the parts include phantom pieces, and a true
+   part bridged onto a nearby phantom goes with it when the phantom is pruned), then centres and radii fitted to every view's mask,
    ends moved to the masks' ends). A branch whose subtree (it and its descendants) the rest of
    the tree covers (projected tubes overlapping by half a radius) over ``explained_share`` of its
    points in every view is removed with its descendants, one subtree at a time, the most covered
@@ -39,7 +41,7 @@ Arrays and projections in, points and a tree out; nothing here reads files.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -77,6 +79,7 @@ class ModelSettings:
     stretch_min_mm: float = 3.0  # a run of contradicted, covered points inside a branch this long goes (notes)
     stretch_apart_mm: float = 5.0  # ... covered by tree points farther than this from it
     claim_rounds: int = 2  # matchings again with each view's pixels claimed by the other's matching
+    correspondence_join_order: str = "largest"  # the volume of step 3's tubes: its parts join largest first (notes)
 
 
 MODEL_SETTINGS = ModelSettings()
@@ -455,8 +458,12 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     start = time.perf_counter()
 
     def fitted_and_pruned(volume: np.ndarray) -> tuple[VesselTree, TreeBuild, int, int]:
+        tree_settings = settings.tree
+        if own is not None:  # the correspondences' tubes: phantom pieces among the parts (module notes)
+            tree_settings = replace(tree_settings, skeleton=replace(tree_settings.skeleton,
+                                                                    join_order=settings.correspondence_join_order))
         tree, tree_build = hull_tree(volume, lattice, projections, masks,
-                                     support_points_mm=support_points_mm, settings=settings.tree)
+                                     support_points_mm=support_points_mm, settings=tree_settings)
         tree, pruned = prune_explained_branches(tree, projections, settings.explained_share,
                                                 settings.explained_reach_radii)
         unreproduced = 0
