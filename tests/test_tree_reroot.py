@@ -126,3 +126,62 @@ def test_a_roots_start_next_to_a_junction_is_measured_past_its_end_cap():
     radius = np.where(arc < 3.0, 1.2 + 0.8 * arc / 3.0, np.where(arc <= 20.0, 2.0, 2.0 - (arc - 20.0) / 20.0))
     radius = np.where((arc >= 12.0) & (arc <= 18.0), 2.35, radius)
     assert _rooted_at_ostium(_Arrays.of(_trunk_with_side_at(radius, 8)), TREE_SETTINGS)[1] == 0.0
+
+
+def _split_with_phantom_stub() -> tuple[VesselTree, np.ndarray]:
+    """A left main seen only near its ostium, rooted at a phantom stub past its split.
+
+    The root runs 9.5 mm along a stub that no view sees (x from -9.5 to 0), then 10.5 mm back up
+    the left main to its ostium at x = 10.5; the two daughters leave at x = 0. No view sees the
+    stub nor the left main's first 7 mm from the split (the radius there, 2.16 mm, is interpolated
+    from the nearest seen point); the views see its last 3.5 mm, the end cap included (2.16 to
+    1.15 mm), and both daughters. Returns the tree and the held points (flat, in branch order)."""
+    x = np.arange(41) * 0.5 - 9.5
+    radius = np.full(41, 2.16)
+    radius[-4:] = [1.88, 1.61, 1.15, 1.15]
+    root = Branch(np.column_stack([x, np.zeros(41), np.zeros(41)]), radius, name="root")
+    t = np.arange(121) * 0.5
+    lad = Branch(np.column_stack([-t * 0.8, t * 0.6, np.zeros(121)]), 1.9 - t / 100.0, parent=0, parent_point=19)
+    lcx = Branch(np.column_stack([-t * 0.8, -t * 0.6, np.zeros(121)]), 1.4 - t / 100.0, parent=0, parent_point=19)
+    held = np.zeros(41 + 2 * 121, dtype=bool)
+    held[:34] = True
+    return VesselTree((root, lad, lcx)), held
+
+
+def test_a_phantom_stub_that_no_view_sees_gives_the_root_to_the_seen_ostium():
+    # the stub and the ostium end are equally wide by their radii (2.16 mm, one interpolated from
+    # the other): told what the views see, the seen end takes the root; told nothing, it stays
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _rooted_at_ostium
+
+    tree, held = _split_with_phantom_stub()
+    assert _rooted_at_ostium(_Arrays.of(tree), TREE_SETTINGS)[1] == 0.0
+    out, moved = _rooted_at_ostium(_Arrays.of(tree), TREE_SETTINGS, held)
+    assert moved == pytest.approx(20.0)
+    np.testing.assert_allclose(out.points[0], [10.5, 0.0, 0.0])
+
+
+def test_an_unseen_roots_start_keeps_the_root_against_thin_seen_tips():
+    # a foreshortened ostium: no view sees the root's first 6 mm (radius 2.3 mm interpolated from
+    # the first seen point), the trunk is 2.3 mm wide up to the side branch and the seen tips are
+    # thin; the root stays where it starts
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _rooted_at_ostium
+
+    arc = np.arange(81) * 0.5
+    radius = np.where(arc <= 20.0, 2.3, 2.3 - 1.4 * (arc - 20.0) / 20.0)
+    held = np.zeros(81 + 21, dtype=bool)
+    held[:13] = True
+    assert _rooted_at_ostium(_Arrays.of(_trunk_with_side_at(radius, 40)), TREE_SETTINGS, held)[1] == 0.0
+
+
+def test_a_stub_by_a_junction_that_no_view_sees_does_not_take_the_root():
+    # a 2 mm stub at 20 mm whose radii (3 mm) no view measured: no point of it is clear of its
+    # junction, and its radius counts for nothing; seen, it would take the root
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _rooted_at_ostium
+
+    points = np.column_stack([np.arange(81) * 0.5, np.zeros(81), np.zeros(81)])
+    stub = np.column_stack([np.full(5, 20.0), np.arange(5) * 0.5, np.zeros(5)])
+    tree = VesselTree((Branch(points, 2.0, name="trunk"), Branch(stub, 3.0, parent=0, parent_point=40, name="stub")))
+    held = np.zeros(86, dtype=bool)
+    assert _rooted_at_ostium(_Arrays.of(tree), TREE_SETTINGS, held)[1] > 5.0
+    held[81:] = True
+    assert _rooted_at_ostium(_Arrays.of(tree), TREE_SETTINGS, held)[1] == 0.0

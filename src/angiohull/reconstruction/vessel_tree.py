@@ -56,7 +56,12 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    branch end with no child there) whose radius averaged over ``ostium_window_mm`` is the
    largest (the widest such mean within two windows of the tip, clear of junctions, else the
    mean one window in: the first window alone is the end cap's; a tip only as wide as the root's
-   start leaves the root where it is), or, where a point inside a branch is wider than that by ``ostium_inner_ratio``
+   start leaves the root where it is). A tip no view sees over those two windows has only the
+   radius interpolated from the nearest seen point inside (a phantom stub at the left main's split
+   carries the left main's): of the tips within ``ostium_inner_ratio`` of the widest, a seen one
+   goes first, and one such tip other than the root's start with no point clear of junctions (a
+   stub by a junction, its radii the skeleton's) is no candidate. Or, where a point inside a
+   branch is wider than the chosen tip by ``ostium_inner_ratio``
    or more (averaged over the same arc, and farther than ``ostium_junction_mm`` from where
    branches meet, as radii swell there), that point (the stub went as a spur); when it lies more than
    ``reroot_mm`` from the root's start, the tree is traced again from there
@@ -513,11 +518,15 @@ def _tip_move(end: np.ndarray, outward: np.ndarray, radius: float, projections, 
     return float(offsets[back[-1]]) if len(back) else 0.0
 
 
-def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings) -> tuple["_Arrays", float]:
-    """The tree rooted at its ostium (module notes, step 4), and how far the root moved (mm)."""
+def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings,
+                      held: np.ndarray | None = None) -> tuple["_Arrays", float]:
+    """The tree rooted at its ostium (module notes, step 4), and how far the root moved (mm).
+    ``held``: (points,) bool, the points no view sees (their radii interpolated along the
+    branch); None: every point is seen."""
     window = max(2, int(round(settings.ostium_window_mm / settings.point_step_mm)))
     child_points = arrays.child_points()
     tips: list[tuple[float, int]] = []  # (mean radius over the window from the tip, flat index)
+    unseen: list[bool] = []  # per tip: no view sees any point of its reach (two windows from it)
     inner, inner_radius = 0, -np.inf
     for b in range(len(arrays.counts)):
         r = arrays.radius[arrays.span(b)]
@@ -541,14 +550,28 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings) -> tuple["_Arra
             centres = np.arange(len(r))[near]
             inside = centres[(np.abs(centres - at) >= window // 2) & clear[near]]
             past_cap = min(window, len(r) - 1) if at == 0 else max(len(r) - 1 - window, 0)
-            tips.append((float(mean[inside].max()) if len(inside) else float(mean[past_cap]), start + at))
+            radius = float(mean[inside].max()) if len(inside) else float(mean[past_cap])
+            unseen.append(held is not None and bool(held[start:start + len(r)][near].all()))
+            if unseen[-1] and not len(inside) and start + at != 0:
+                radius = -np.inf  # a stub by a junction that no view sees: its radii say nothing
+            tips.append((radius, start + at))
         if clear.any():
             k = int(np.flatnonzero(clear)[np.argmax(mean[clear])])
             if mean[k] > inner_radius:
                 inner, inner_radius = start + k, float(mean[k])
-    tip_radius, best = max(tips)
     start_radius = tips[0][0]  # the root's start (its entry comes first)
-    if best != 0 and tip_radius <= start_radius:
+    if any(unseen) and not all(unseen):
+        # an unseen tip's radius is the one interpolated from the nearest seen point inside: of the
+        # tips within ostium_inner_ratio of the widest, a seen one goes first (a phantom stub at the
+        # left main's split carried the left main's radius and held the root 10-14 mm from the ostium)
+        widest = max(radius for radius, _ in tips)
+        seen_best, tip_radius, best = max((not u, radius, at) for u, (radius, at) in zip(unseen, tips)
+                                          if radius * settings.ostium_inner_ratio >= widest)
+        start_seen = not unseen[0]
+    else:
+        tip_radius, best = max(tips)
+        start_seen = seen_best = True
+    if best != 0 and tip_radius <= start_radius and (start_seen or not seen_best):
         tip_radius, best = start_radius, 0  # as wide as where the root starts (a stub held at one radius): it stays
     if inner_radius > settings.ostium_inner_ratio * tip_radius:
         best = inner  # the stub to the ostium went as a spur: the ostium is inside a branch
@@ -931,7 +954,7 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
             arrays.reattach(b)
         arrays.smooth(0.5 * settings.smoothing_mm, step)
     _smooth_radii(arrays, settings.radius_smoothing_mm, step)
-    arrays, rerooted_mm = _rooted_at_ostium(arrays, settings)
+    arrays, rerooted_mm = _rooted_at_ostium(arrays, settings, held)
     arrays, junctions_moved = _junction_on_axes(arrays, settings)
     _straight_tips(arrays, settings)
     timings["fit"] = time.perf_counter() - start
