@@ -174,8 +174,9 @@ def test_an_unseen_roots_start_keeps_the_root_against_thin_seen_tips():
 
 
 def test_a_stub_by_a_junction_that_no_view_sees_does_not_take_the_root():
-    # a 2 mm stub at 20 mm whose radii (3 mm) no view measured: no point of it is clear of its
-    # junction, and its radius counts for nothing; seen, it would take the root
+    # a 2 mm stub at 20 mm whose radii (3 mm) no view measured: it is no longer than the reach of
+    # its junction's swelling (ostium_junction_mm), and its radius counts for nothing; seen, it
+    # would take the root
     from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _rooted_at_ostium
 
     points = np.column_stack([np.arange(81) * 0.5, np.zeros(81), np.zeros(81)])
@@ -185,3 +186,27 @@ def test_a_stub_by_a_junction_that_no_view_sees_does_not_take_the_root():
     assert _rooted_at_ostium(_Arrays.of(tree), TREE_SETTINGS, held)[1] > 5.0
     held[81:] = True
     assert _rooted_at_ostium(_Arrays.of(tree), TREE_SETTINGS, held)[1] == 0.0
+
+
+def test_a_wide_branch_that_runs_on_into_a_narrower_child_ends_at_the_ostium():
+    # the skeleton's root starts at a thin distal end (x = 40, radius 1.0 mm) and runs up a trunk
+    # 2.0 mm wide to x = 0, where the stub to the ostium went as a spur: only a conus branch
+    # (0.9 mm) runs on from the trunk's last point. That end is where the wide vessel ends: the
+    # root moves there (40 mm), not to the widest point inside (which lies 5 mm or more from it)
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _rooted_at_ostium
+
+    x = 40.0 - np.arange(81) * 0.5
+    trunk = Branch(np.column_stack([x, np.zeros(81), np.zeros(81)]), np.where(x > 20.0, 2.0 - (x - 20.0) / 20.0, 2.0),
+                   name="trunk")
+    t = np.arange(41) * 0.5
+    side = Branch(np.column_stack([np.full(41, 30.0), -t, np.zeros(41)]), 0.8, parent=0, parent_point=20)
+    conus = Branch(np.column_stack([-t * 0.6, t * 0.8, np.zeros(41)]), 0.9, parent=0, parent_point=80)
+    tree = VesselTree((trunk, side, conus))
+    out, moved = _rooted_at_ostium(_Arrays.of(tree), TREE_SETTINGS)
+    assert moved == pytest.approx(40.0)
+    np.testing.assert_allclose(out.points[0], [0.0, 0.0, 0.0], atol=1e-9)
+    # a child as wide as the trunk runs on (1.9 mm): the trunk's end is no tip, the vessel goes on
+    # to the child's end, which takes the root
+    wide = VesselTree((trunk, side, Branch(conus.points_mm, 1.9, parent=0, parent_point=80)))
+    out, moved = _rooted_at_ostium(_Arrays.of(wide), TREE_SETTINGS)
+    np.testing.assert_allclose(out.points[0], conus.points_mm[-1], atol=1e-9)

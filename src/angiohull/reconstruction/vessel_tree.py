@@ -56,12 +56,15 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    branch end with no child there) whose radius averaged over ``ostium_window_mm`` is the
    largest (the widest such mean within two windows of the tip, clear of junctions, else the
    mean one window in: the first window alone is the end cap's; a tip only as wide as the root's
-   start leaves the root where it is). A tip no view sees over those two windows has only the
-   radius interpolated from the nearest seen point inside (a phantom stub at the left main's split
-   carries the left main's): of the tips within ``ostium_inner_ratio`` of the widest, a seen one
-   goes first, and one such tip other than the root's start with no point clear of junctions (a
-   stub by a junction, its radii the skeleton's) is no candidate. Or, where a point inside a
-   branch is wider than the chosen tip by ``ostium_inner_ratio``
+   start leaves the root where it is; a branch end from which only children narrower by
+   ``ostium_inner_ratio`` run on, and that a view sees, counts as a tip: the wide vessel ends
+   there, as where the stub to the ostium went as a spur and the skeleton ran on into the conus
+   branch). A tip no view sees over those two windows has only the radius interpolated from the
+   nearest seen point inside (a phantom stub at the left main's split carries the left main's):
+   of the tips within ``ostium_inner_ratio`` of the widest, a seen one goes first, and an unseen
+   side branch no longer than ``ostium_junction_mm`` (a stub by a junction, its radii the
+   junction's) is no candidate. Or, where a point inside a branch is wider than the chosen tip by
+   ``ostium_inner_ratio``
    or more (averaged over the same arc, and farther than ``ostium_junction_mm`` from where
    branches meet, as radii swell there), that point (the stub went as a spur); when it lies more than
    ``reroot_mm`` from the root's start, the tree is traced again from there
@@ -543,18 +546,26 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings,
         # a tip's radius: the widest mean over the window within two windows of it, where no
         # branches meet, else the mean one window from it (its first window alone is the end
         # cap's, narrower than the vessel: a root that started at the ostium was moved to a wider
-        # point inside, 10-20 mm away)
-        ends = ([(0, slice(0, 2 * window))] if b == 0 else []) + \
-            ([(len(r) - 1, slice(max(len(r) - 2 * window, 0), len(r)))] if len(r) - 1 not in child_points[b] else [])
+        # point inside, 10-20 mm away). A branch end where only narrower children run on (by
+        # ostium_inner_ratio) and that a view sees is a tip too: the wide vessel ends there (the
+        # stub to the ostium went as a spur, and the skeleton ran on into the conus branch)
+        last = len(r) - 1
+        onward = [c for c in range(1, len(arrays.counts)) if arrays.parents[c] == b and arrays.parent_points[c] == last]
+        ends = ([(0, slice(0, 2 * window))] if b == 0 else []) + [(last, slice(max(len(r) - 2 * window, 0), len(r)))]
         for at, near in ends:
             centres = np.arange(len(r))[near]
             inside = centres[(np.abs(centres - at) >= window // 2) & clear[near]]
             past_cap = min(window, len(r) - 1) if at == 0 else max(len(r) - 1 - window, 0)
             radius = float(mean[inside].max()) if len(inside) else float(mean[past_cap])
-            unseen.append(held is not None and bool(held[start:start + len(r)][near].all()))
-            if unseen[-1] and not len(inside) and start + at != 0:
-                radius = -np.inf  # a stub by a junction that no view sees: its radii say nothing
+            tip_unseen = held is not None and bool(held[start:start + len(r)][near].all())
+            if at == last and onward:
+                widest_onward = max(float(arrays.radius[arrays.span(c)][:window].mean()) for c in onward)
+                if tip_unseen or radius < settings.ostium_inner_ratio * widest_onward:
+                    continue
+            if tip_unseen and b != 0 and arc[-1] <= settings.ostium_junction_mm:
+                radius = -np.inf  # a stub by a junction that no view sees: its radii are the junction's
             tips.append((radius, start + at))
+            unseen.append(tip_unseen)
         if clear.any():
             k = int(np.flatnonzero(clear)[np.argmax(mean[clear])])
             if mean[k] > inner_radius:
