@@ -210,3 +210,18 @@ def test_a_wide_branch_that_runs_on_into_a_narrower_child_ends_at_the_ostium():
     wide = VesselTree((trunk, side, Branch(conus.points_mm, 1.9, parent=0, parent_point=80)))
     out, moved = _rooted_at_ostium(_Arrays.of(wide), TREE_SETTINGS)
     np.testing.assert_allclose(out.points[0], conus.points_mm[-1], atol=1e-9)
+
+
+def test_a_roots_start_whose_end_cap_reaches_past_its_first_junction_keeps_the_root():
+    # the root's first 6 mm ramp from 0.8 mm (the hull's excess past the end cap) to the vessel's
+    # 2.4 mm, and a side branch leaves 8.5 mm in: the stretch clear of that junction holds only
+    # the ramp (its widest 3 mm mean 1.6 mm), but up to the junction the start is as wide as any
+    # point inside (2.4 mm), and the root stays where it starts
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _rooted_at_ostium
+
+    arc = np.arange(121) * 0.5
+    radius = np.where(arc < 6.0, 0.8 + 1.6 * arc / 6.0, np.where(arc <= 30.0, 2.4, 2.4 - 1.2 * (arc - 30.0) / 30.0))
+    points = np.column_stack([arc, np.zeros(121), np.zeros(121)])
+    side = np.column_stack([np.full(41, 8.5), np.arange(41) * 0.5, np.zeros(41)])
+    tree = VesselTree((Branch(points, radius, name="trunk"), Branch(side, 0.8, parent=0, parent_point=17)))
+    assert _rooted_at_ostium(_Arrays.of(tree), TREE_SETTINGS)[1] == 0.0

@@ -64,7 +64,9 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    of the tips within ``ostium_inner_ratio`` of the widest, a seen one goes first, and an unseen
    side branch no longer than ``ostium_junction_mm`` (a stub by a junction, its radii the
    junction's) is no candidate. Or, where a point inside a branch is wider than the chosen tip by
-   ``ostium_inner_ratio``
+   ``ostium_inner_ratio`` (the root's start, when chosen, counted as wide as its widest mean
+   within its two windows up to its first junction: the end cap's excess and a junction's reach
+   can leave no stretch clear of both)
    or more (averaged over the same arc, and farther than ``ostium_junction_mm`` from where
    branches meet, as radii swell there), that point (the stub went as a spur); when it lies more than
    ``reroot_mm`` from the root's start, the tree is traced again from there
@@ -535,6 +537,8 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings,
         r = arrays.radius[arrays.span(b)]
         start = int(arrays.starts[b])
         mean = ndi.uniform_filter1d(r, size=min(window, len(r)), mode="nearest")
+        if b == 0:
+            root_mean = mean
         # not where branches meet: their cross-sections merge there and the radii swell
         arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(arrays.points[arrays.span(b)], axis=0), axis=1))])
         junctions = [arc[p] for p in child_points[b]]
@@ -584,6 +588,13 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings,
         start_seen = seen_best = True
     if best != 0 and tip_radius <= start_radius and (start_seen or not seen_best):
         tip_radius, best = start_radius, 0  # as wide as where the root starts (a stub held at one radius): it stays
+    reach = min([2 * window, len(root_mean)] + child_points[0])
+    if best == 0 and reach > window // 2:
+        # against a point inside, the root's start counts as wide as it gets within its two
+        # windows, up to its first junction: where the end cap's excess and the reach of a junction
+        # overlap, the stretch clear of both is too short to leave the cap (a root that started at
+        # the ostium went 13-47 mm inside)
+        tip_radius = max(tip_radius, float(root_mean[window // 2:reach].max()))
     if inner_radius > settings.ostium_inner_ratio * tip_radius:
         best = inner  # the stub to the ostium went as a spur: the ostium is inside a branch
     distance = float(np.linalg.norm(arrays.points[best] - arrays.points[0]))
