@@ -555,7 +555,9 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings,
         # stub to the ostium went as a spur, and the skeleton ran on into the conus branch)
         last = len(r) - 1
         onward = [c for c in range(1, len(arrays.counts)) if arrays.parents[c] == b and arrays.parent_points[c] == last]
-        ends = ([(0, slice(0, 2 * window))] if b == 0 else []) + [(last, slice(max(len(r) - 2 * window, 0), len(r)))]
+        ends = [(0, slice(0, 2 * window))] if b == 0 else []
+        if b > 0 or last > 0:  # (a root of one point is its start: always a tip)
+            ends.append((last, slice(max(len(r) - 2 * window, 0), len(r))))
         for at, near in ends:
             centres = np.arange(len(r))[near]
             inside = centres[(np.abs(centres - at) >= window // 2) & clear[near]]
