@@ -530,6 +530,10 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings,
     branch); None: every point is seen."""
     window = max(2, int(round(settings.ostium_window_mm / settings.point_step_mm)))
     child_points = arrays.child_points()
+    onward_from_end: list[list[int]] = [[] for _ in range(len(arrays.counts))]  # children leaving a branch's last point
+    for c in range(1, len(arrays.counts)):
+        if arrays.parent_points[c] == arrays.counts[arrays.parents[c]] - 1:
+            onward_from_end[arrays.parents[c]].append(c)
     tips: list[tuple[float, int]] = []  # (mean radius over the window from the tip, flat index)
     unseen: list[bool] = []  # per tip: no view sees any point of its reach (two windows from it)
     inner, inner_radius = 0, -np.inf
@@ -554,7 +558,7 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings,
         # ostium_inner_ratio) and that a view sees is a tip too: the wide vessel ends there (the
         # stub to the ostium went as a spur, and the skeleton ran on into the conus branch)
         last = len(r) - 1
-        onward = [c for c in range(1, len(arrays.counts)) if arrays.parents[c] == b and arrays.parent_points[c] == last]
+        onward = onward_from_end[b]
         ends = [(0, slice(0, 2 * window))] if b == 0 else []
         if b > 0 or last > 0:  # (a root of one point is its start: always a tip)
             ends.append((last, slice(max(len(r) - 2 * window, 0), len(r))))
@@ -563,7 +567,7 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings,
             inside = centres[(np.abs(centres - at) >= window // 2) & clear[near]]
             past_cap = min(window, len(r) - 1) if at == 0 else max(len(r) - 1 - window, 0)
             radius = float(mean[inside].max()) if len(inside) else float(mean[past_cap])
-            tip_unseen = held is not None and bool(held[start:start + len(r)][near].all())
+            tip_unseen = held is not None and bool(held[arrays.span(b)][near].all())
             if at == last and onward:
                 widest_onward = max(float(arrays.radius[arrays.span(c)][:window].mean()) for c in onward)
                 if tip_unseen or radius < settings.ostium_inner_ratio * widest_onward:
