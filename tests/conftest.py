@@ -97,6 +97,23 @@ def shared_root() -> Path:
     return Path(env) if env else Path(__file__).resolve().parents[2] / "shared"
 
 
+@pytest.fixture(params=["compiled", "numpy"])
+def kernel_backend(request):
+    """Runs a test with the compiled kernels (numba; skipped where it is not installed) and with
+    the NumPy reference code (angiohull.compiled)."""
+    from angiohull import compiled
+
+    if request.param == "compiled":
+        pytest.importorskip("numba", reason="numba is not installed (pip install '.[fast]'): the compiled kernels "
+                                            "are not tested")
+    previous = compiled.set_enabled(request.param == "compiled")
+    if request.param == "compiled" and compiled.kernels() is None:
+        compiled.set_enabled(previous)
+        pytest.skip(f"the compiled kernels do not load: {compiled.status()}")
+    yield request.param
+    compiled.set_enabled(previous)
+
+
 @pytest.fixture(scope="session")
 def peer_synthetic_dir() -> Path:
     """The authors' 48 peer-synthetic studies, or a skip when ../shared is absent."""

@@ -31,7 +31,7 @@ def _fast_engines_equal_kdtree_on_peer_studies(peer_synthetic_dir, every: int):
             np.testing.assert_array_equal(got, reference, err_msg=f"{case} {engine}")
 
 
-def test_fast_engines_equal_kdtree_on_a_sixth_of_the_peer_studies(peer_synthetic_dir):
+def test_fast_engines_equal_kdtree_on_a_sixth_of_the_peer_studies(peer_synthetic_dir, kernel_backend):
     """Every sixth study (both view sets, every tortuosity); all 48 behind the slow marker."""
     _fast_engines_equal_kdtree_on_peer_studies(peer_synthetic_dir, 6)
 
@@ -43,7 +43,7 @@ def test_fast_engines_equal_kdtree_on_every_peer_study(peer_synthetic_dir):
 
 @pytest.mark.parametrize("seed", range(6))
 @pytest.mark.parametrize("threshold", [0.5, 1.0, 1.5, 2.3, 4.5])
-def test_fast_engines_equal_kdtree_on_random_cases(seed, threshold):
+def test_fast_engines_equal_kdtree_on_random_cases(seed, threshold, kernel_backend):
     projections, masks = random_case(seed, n_views=2 + seed % 3)
     reference = carve("kdtree", projections, masks, 48, threshold)
     assert len(reference) > 0 or threshold < 1  # sub-pixel thresholds may carve everything away
@@ -51,7 +51,7 @@ def test_fast_engines_equal_kdtree_on_random_cases(seed, threshold):
         np.testing.assert_array_equal(carve(engine, projections, masks, 48, threshold), reference, err_msg=engine)
 
 
-def test_fast_engines_with_the_source_inside_the_cube():
+def test_fast_engines_with_the_source_inside_the_cube(kernel_backend):
     k = np.array([[40.0, 0, 31.5], [0, 40.0, 31.5], [0, 0, 1]])
     rotation = CArmGeometry(20, 10, 1200, 800, (1, 1), (64, 64)).projection().matrix[:, :3] / 1.0
     q, _ = np.linalg.qr(rotation)

@@ -90,7 +90,7 @@ def _some_tie_resolution_gives(target, points, projections, masks, max_ties=12):
     return search(0, points)
 
 
-def test_centerline_step_reproduces_the_authors_centerlines(peer_synthetic_dir):
+def test_centerline_step_reproduces_the_authors_centerlines(peer_synthetic_dir, kernel_backend):
     """Skeletons are theirs pixel for pixel (test_thinning); the distinct centerline points are their
     set on 46 of 48 studies; on the other two (perpendicular views, where lattice points mirror each
     other about a view's central ray) every difference is a tie that their k-d tree resolved the other

@@ -6,7 +6,7 @@ from PIL import Image
 from scipy import ndimage as ndi
 
 from angiohull.reconstruction import skeletonise
-from angiohull.thinning import guo_hall_thin, guo_hall_thin_many
+from angiohull.thinning import guo_hall_skeleton_pixels, guo_hall_thin, guo_hall_thin_many
 
 
 def _reference_thin(mask: np.ndarray, keep_edge: bool) -> np.ndarray:
@@ -53,13 +53,13 @@ def _blobs(seed: int, shape=(40, 56), touching_edge=False) -> np.ndarray:
 
 @pytest.mark.parametrize("seed", range(6))
 @pytest.mark.parametrize("keep_edge", [False, True])
-def test_equals_the_per_pixel_rule_on_random_images(seed, keep_edge):
+def test_equals_the_per_pixel_rule_on_random_images(seed, keep_edge, kernel_backend):
     mask = _blobs(seed, touching_edge=seed % 2 == 0)
     np.testing.assert_array_equal(guo_hall_thin(mask, keep_edge=keep_edge), _reference_thin(mask, keep_edge))
 
 
 @pytest.mark.parametrize("keep_edge", [False, True])
-def test_several_images_at_once_equal_the_per_pixel_rule_on_each(keep_edge):
+def test_several_images_at_once_equal_the_per_pixel_rule_on_each(keep_edge, kernel_backend):
     # images of different shapes, one touching the edges, one empty, one a single pixel wide: thinned
     # together, each comes out as the per-pixel rule thins it alone
     masks = [_blobs(10, touching_edge=True), _blobs(11, shape=(23, 71)), np.zeros((9, 9), bool),
@@ -68,6 +68,12 @@ def test_several_images_at_once_equal_the_per_pixel_rule_on_each(keep_edge):
         assert skeleton.shape == mask.shape and skeleton.dtype == bool
         np.testing.assert_array_equal(skeleton, _reference_thin(mask, keep_edge))
     assert guo_hall_thin_many([]) == []
+    # the skeletons' pixel centres, as np.nonzero lists them (u = column, v = row)
+    for mask, pixels in zip(masks, guo_hall_skeleton_pixels(masks, keep_edge=keep_edge)):
+        rows, cols = np.nonzero(_reference_thin(mask, keep_edge))
+        assert pixels.shape == (len(rows), 2) and pixels.dtype == np.float64
+        np.testing.assert_array_equal(pixels, np.stack([cols, rows], axis=1))
+    assert guo_hall_skeleton_pixels([]) == []
 
 
 def test_hand_worked_cases():
@@ -111,7 +117,7 @@ def test_rejects_non_2d_input():
         guo_hall_thin(np.zeros((3, 3, 3)))
 
 
-def test_skeletons_equal_the_authors_on_all_48_peer_studies(peer_synthetic_dir):
+def test_skeletons_equal_the_authors_on_all_48_peer_studies(peer_synthetic_dir, kernel_backend):
     differing = []
     for folder in sorted(p for p in peer_synthetic_dir.iterdir() if p.is_dir()):
         theirs = np.load(folder / "peer_reconstruction.npz", allow_pickle=False)["skeletons"]

@@ -37,7 +37,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["guo_hall_thin", "guo_hall_thin_many", "GUO_HALL_TABLES"]
+from .compiled import kernels
+
+__all__ = ["guo_hall_thin", "guo_hall_thin_many", "guo_hall_skeleton_pixels", "GUO_HALL_TABLES"]
 
 
 def _rule_tables() -> np.ndarray:
@@ -98,10 +100,36 @@ def guo_hall_thin_many(masks, *, keep_edge: bool = False) -> list[np.ndarray]:
     nothing stays as it is while the others go on); the per-subiteration overhead is paid once for
     all of them (the centerline step thins every view's mask)."""
     masks = [np.asarray(m) for m in masks]
+    outs = [np.zeros(m.shape, dtype=bool) for m in masks]
+    for (i, r0, r1, c0, c1), top, skeleton in _thinned_boxes(masks, keep_edge):
+        outs[i][r0:r1, c0:c1] = skeleton[top + 1:top + 1 + r1 - r0, 1:1 + c1 - c0]
+    return outs
+
+
+def guo_hall_skeleton_pixels(masks, *, keep_edge: bool = False) -> list[np.ndarray]:
+    """The pixel centres ``(u, v) = (column, row)`` of each image's :func:`guo_hall_thin` skeleton,
+    (M, 2) float64 in row-major order (as ``np.nonzero`` lists them), without building the skeleton
+    images."""
+    masks = [np.asarray(m) for m in masks]
+    outs = [np.empty((0, 2)) for _ in masks]
+    thinned = _thinned_boxes(masks, keep_edge)
+    if not thinned:
+        return outs
+    stacked = thinned[0][2]
+    rows, cols = np.nonzero(stacked)  # every box's pixels at once, box after box
+    for (i, r0, r1, c0, c1), top, _ in thinned:
+        lo, hi = np.searchsorted(rows, [top + 1, top + 1 + r1 - r0])
+        outs[i] = np.stack([cols[lo:hi] - 1 + c0, rows[lo:hi] - top - 1 + r0], axis=1).astype(np.float64)
+    return outs
+
+
+def _thinned_boxes(masks: list[np.ndarray], keep_edge: bool) -> list[tuple[tuple[int, ...], int, np.ndarray]]:
+    """Thin the masks' bounding boxes stacked into one image: ``((mask index, r0, r1, c0, c1), top,
+    stacked skeleton)`` per non-empty mask, the box at rows ``top + 1 ..`` and columns ``1 ..`` of
+    the stacked image (the same array for all)."""
     for m in masks:
         if m.ndim != 2:
             raise ValueError(f"guo_hall_thin expects a 2D image, got shape {m.shape}")
-    outs = [np.zeros(m.shape, dtype=bool) for m in masks]
     boxes = []
     for i, m in enumerate(masks):
         foreground = m != 0
@@ -111,7 +139,7 @@ def guo_hall_thin_many(masks, *, keep_edge: bool = False) -> list[np.ndarray]:
         hit_cols = np.flatnonzero(foreground.any(axis=0))
         boxes.append((i, foreground, hit_rows[0], hit_rows[-1] + 1, hit_cols[0], hit_cols[-1] + 1))
     if not boxes:
-        return outs
+        return []
     # the bounding boxes one under the other, each with a background margin of one pixel, flattened
     width = max(c1 - c0 for *_, c0, c1 in boxes) + 2
     image = np.zeros((sum(r1 - r0 + 2 for _, _, r0, r1, _, _ in boxes), width), dtype=np.uint8)
@@ -130,6 +158,20 @@ def guo_hall_thin_many(masks, *, keep_edge: bool = False) -> list[np.ndarray]:
             frozen[top + 1:top + 1 + r1 - r0, 1:1 + c1 - c0] = edge[r0:r1, c0:c1]
         tops.append(top)
         top += r1 - r0 + 2
+    compiled = kernels()
+    if compiled is not None:
+        never = np.zeros(image.size, dtype=bool) if frozen is None else frozen.ravel()
+        compiled.guo_hall_thin_flat(image.ravel(), never, width, GUO_HALL_TABLES)
+    else:
+        _thin_stacked_numpy(image, frozen)
+    skeleton = image.view(bool)
+    return [((i, int(r0), int(r1), int(c0), int(c1)), t, skeleton) for (i, _, r0, r1, c0, c1), t in zip(boxes, tops)]
+
+
+def _thin_stacked_numpy(image: np.ndarray, frozen: np.ndarray | None) -> None:
+    """Thin ``image`` (uint8 0/1, a background margin of one pixel all round) in place; ``frozen``
+    (bool, same shape, or None) pixels are never deleted. The reference of the compiled kernel."""
+    width = image.shape[1]
     flat = image.ravel()
     # offsets of p2..p9 and their bit in the code
     offsets = np.array([-width, -width + 1, 1, width + 1, width, width - 1, -1, -width - 1], dtype=np.int64)
@@ -170,6 +212,3 @@ def guo_hall_thin_many(masks, *, keep_edge: bool = False) -> list[np.ndarray]:
                 break
             changed_in_pass = 0
         subiteration = 1 - subiteration
-    for (i, _, r0, r1, c0, c1), top in zip(boxes, tops):
-        outs[i][r0:r1, c0:c1] = image[top + 1:top + 1 + r1 - r0, 1:1 + c1 - c0].astype(bool)
-    return outs

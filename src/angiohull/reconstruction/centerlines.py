@@ -7,8 +7,7 @@ from typing import Sequence
 import numpy as np
 
 from ..geometry import Projection
-from ..thinning import guo_hall_thin, guo_hall_thin_many
-from .engines import mask_pixel_centres
+from ..thinning import guo_hall_skeleton_pixels, guo_hall_thin
 from .nearest import nearest_with_ties
 
 __all__ = ["skeletonise", "extract_centerlines", "TIE_PX"]
@@ -55,11 +54,10 @@ def extract_centerlines(points_mm: np.ndarray, projections: Sequence[Projection]
     points = np.asarray(points_mm, dtype=np.float64)
     index = np.arange(len(points))  # the candidates, as indices into points
     # every view's skeleton at once (as skeletonise thins each): one thinning pass over them all
-    skeletons = guo_hall_thin_many(masks, keep_edge=True) if len(index) else []
-    for projection, skeleton in zip(projections, skeletons):
+    skeletons_uv = guo_hall_skeleton_pixels(masks, keep_edge=True) if len(index) else []
+    for projection, skeleton_uv in zip(projections, skeletons_uv):
         if len(index) == 0:
             break
-        skeleton_uv = mask_pixel_centres(skeleton)
         if len(skeleton_uv) == 0:
             return points[:0]
         _, nearest = nearest_with_ties(projection.project(points[index]), skeleton_uv, TIE_PX, index)

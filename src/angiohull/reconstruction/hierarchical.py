@@ -22,6 +22,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..compiled import kernels
 from ..geometry import Projection
 from .cube import Lattice
 from .engines import CHUNK_POINTS, ENGINES, CarveOutcome, MaskLookup, project_row, sparsest_first
@@ -126,6 +127,12 @@ def carve_hierarchical(lattice: Lattice, projections: Sequence[Projection], mask
                              leaf_size=leaf_size, xp=xp, chunk_points=chunk_points, need=int(min_views))
     k = lattice.resolution
     order = sparsest_first(masks)
+    if xp is np and kernels() is not None:
+        outcome = _carve_compiled(lattice, [projections[i] for i in order], [masks[i] for i in order],
+                                  threshold_px=threshold_px, root_size=root_size, leaf_size=leaf_size)
+        if len(outcome.points_mm):
+            return CarveOutcome(outcome.points_mm, outcome.survivors_per_view, order)
+        # nothing kept: the NumPy path below says which view removed the last cells
     tests = [FootprintTest(projections[i], masks[i], threshold_px, xp) for i in order]
     exact = [_ExactTest(projections[i], masks[i], threshold_px, xp) for i in order]
     axis = xp.asarray(lattice.axis_mm())
@@ -156,6 +163,32 @@ def carve_hierarchical(lattice: Lattice, projections: Sequence[Projection], mask
     flat = xp.sort(xp.concatenate(kept))
     flat = flat.get() if hasattr(flat, "get") else flat
     return CarveOutcome(lattice.points_at(flat), tuple(survivors), order)
+
+
+def _carve_compiled(lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
+                    threshold_px: float, root_size: int, leaf_size: int) -> CarveOutcome:
+    """:func:`carve_hierarchical` (every view, in the order given) by the compiled kernel: the same
+    cells culled, the same exact test, the same kept points and survivor counts."""
+    compiled = kernels()
+    reach = int(np.ceil(float(threshold_px)))
+    pad = 2 * reach + 1  # as MaskLookup pads
+    rows = max(m.shape[0] for m in masks)
+    cols = max(m.shape[1] for m in masks)
+    n = len(masks)
+    tables = np.zeros((n, rows + 1, cols + 1), dtype=np.int32)
+    padded = np.zeros((n, rows + 2 * pad, cols + 2 * pad), dtype=np.bool_)
+    shapes = np.zeros((n, 2), dtype=np.int64)
+    for i, mask in enumerate(masks):
+        mask = np.ascontiguousarray(mask, dtype=bool)
+        r, c = mask.shape
+        tables[i, :r + 1, :c + 1] = compiled.summed_area_table(mask.view(np.uint8))
+        padded[i, pad:pad + r, pad:pad + c] = mask
+        shapes[i] = r, c
+    matrices = np.stack([np.asarray(p.matrix, dtype=np.float64) for p in projections])
+    points, survivors = compiled.carve_lattice(lattice.axis_mm(), int(root_size), int(leaf_size), matrices, tables,
+                                               shapes, padded, np.full(n, pad, dtype=np.int64), float(threshold_px),
+                                               reach, float(threshold_px) + _MARGIN_PX)
+    return CarveOutcome(points, tuple(int(s) for s in survivors))
 
 
 def _carve_k_of_n(lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray], *,

@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..compiled import kernels
+
 __all__ = ["nearest_with_ties"]
 
 
@@ -37,8 +39,15 @@ def nearest_with_ties(points: np.ndarray, query: np.ndarray, tie: float, rank: n
     index : (M,) int array
         Index into ``points`` of the chosen point.
     """
-    tree = cKDTree(points)
     rank = np.arange(len(points)) if rank is None else np.asarray(rank)
+    compiled = kernels()
+    if compiled is not None and points.ndim == 2 and points.shape[1] == 2 and len(points) and len(query) \
+            and np.isfinite(points).all() and np.isfinite(query).all():
+        points = np.ascontiguousarray(points, dtype=np.float64)
+        query = np.ascontiguousarray(query, dtype=np.float64)
+        return compiled.nearest_2d_with_ties(points, query, float(tie), np.ascontiguousarray(rank, dtype=np.int64),
+                                             _cell_edge(points, query))
+    tree = cKDTree(points)
     k = min(k, len(points))
     distance, index = tree.query(query, k=k)
     if k == 1:
@@ -50,3 +59,13 @@ def nearest_with_ties(points: np.ndarray, query: np.ndarray, tie: float, rank: n
         equally_near = np.asarray(tree.query_ball_point(query[i], distance[i, 0] + tie))
         nearest[i] = equally_near[np.argmin(rank[equally_near])]
     return distance[:, 0], nearest
+
+
+def _cell_edge(points: np.ndarray, query: np.ndarray) -> float:
+    """Cell edge of the compiled search's grid over the box of the points and the queries: about
+    two points per cell, and at most 2N + 1 cells along either side (N points)."""
+    both = np.concatenate([points, query])
+    extent = both.max(axis=0) - both.min(axis=0)
+    longest = float(extent.max())
+    edge = max(float(np.sqrt(2.0 * float(extent[0]) * float(extent[1]) / len(points))), longest / (2 * len(points)))
+    return edge if edge > 0 else 1.0

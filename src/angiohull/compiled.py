@@ -1,0 +1,88 @@
+"""Optional compiled kernels for the hot loops (``pip install "angiohull[fast]"``: numba).
+
+The carving, the Guo–Hall thinning and the centerline step's nearest-neighbour search each have a
+NumPy implementation, which is the reference, and a compiled one (:mod:`angiohull._numba_kernels`)
+that computes the same thing with the same arithmetic: the same points, skeletons and neighbours
+bit for bit (the tests compare them). The compiled kernels are used when numba can be imported;
+set the environment variable ``ANGIOHULL_COMPILED=0`` (or call :func:`set_enabled`) to run the
+NumPy code instead. The first call of a kernel on a machine compiles it (a few seconds, once);
+later processes load it from numba's cache (at a terminal, a note on stderr says when it compiles).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+from types import ModuleType
+from typing import Iterator
+
+__all__ = ["kernels", "set_enabled", "disabled", "status"]
+
+_OFF = {"0", "no", "false", "off"}
+_state: dict[str, object] = {"enabled": os.environ.get("ANGIOHULL_COMPILED", "1").strip().lower() not in _OFF,
+                             "module": None, "error": None}
+
+
+def kernels() -> ModuleType | None:
+    """The compiled kernels' module, or None when they are disabled or numba is not installed."""
+    if not _state["enabled"]:
+        return None
+    if _state["module"] is None and _state["error"] is None:
+        try:
+            from . import _numba_kernels
+        except ImportError as exc:  # numba absent (or broken): the NumPy code runs
+            _state["error"] = f"{type(exc).__name__}: {exc}"
+        else:
+            _state["module"] = _numba_kernels
+            if _interactive() and not _cached(_numba_kernels):
+                sys.stderr.write("angiohull: compiling the numba kernels, once for this installation (10-20 s; "
+                                 "ANGIOHULL_COMPILED=0 runs the NumPy code instead)\n")
+    return _state["module"]  # type: ignore[return-value]
+
+
+def _interactive() -> bool:
+    """Whether stderr is a terminal: the compile note is for a person waiting at one."""
+    try:
+        return bool(sys.stderr.isatty())
+    except (AttributeError, ValueError):
+        return False
+
+
+def _cached(module: ModuleType) -> bool:
+    """Whether numba's cache holds the main kernels (read from numba's cache objects; True when
+    that cannot be told, so that the note is only ever written when it is due)."""
+    try:
+        return all(os.path.exists(getattr(module, name)._cache._cache_file._index_path)
+                   for name in ("carve_lattice", "guo_hall_thin_flat", "nearest_2d_with_ties"))
+    except Exception:  # noqa: BLE001 - numba's private layout changed: say nothing
+        return True
+
+
+def set_enabled(enabled: bool) -> bool:
+    """Use the compiled kernels (where numba is installed) or not; returns the previous setting."""
+    previous = bool(_state["enabled"])
+    _state["enabled"] = bool(enabled)
+    return previous
+
+
+@contextlib.contextmanager
+def disabled() -> Iterator[None]:
+    """Run the NumPy reference code inside the block."""
+    previous = set_enabled(False)
+    try:
+        yield
+    finally:
+        set_enabled(previous)
+
+
+def status() -> str:
+    """One line for reports: whether the compiled kernels run, and why not."""
+    if not _state["enabled"]:
+        return "NumPy (compiled kernels disabled)"
+    module = kernels()
+    if module is None:
+        return f"NumPy (numba not available: {_state['error']})"
+    import numba
+
+    return f"numba {numba.__version__}"

@@ -1,0 +1,140 @@
+"""The compiled kernels (angiohull.compiled, numba) give what the NumPy reference code gives, bit for bit."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from angiohull import compiled
+from angiohull.geometry import CArmGeometry, cube_half_edge_mm
+from angiohull.reconstruction import Lattice, extract_centerlines, reconstruct
+from angiohull.reconstruction.hierarchical import carve_hierarchical, cell_sizes
+from angiohull.reconstruction.nearest import nearest_with_ties
+from angiohull.study import load_study
+from _cases import random_case
+
+numba = pytest.importorskip("numba", reason="numba is not installed (pip install '.[fast]'): the compiled kernels "
+                                            "are not tested")
+
+
+@pytest.fixture(autouse=True)
+def _compiled_on():
+    previous = compiled.set_enabled(True)
+    if compiled.kernels() is None:
+        compiled.set_enabled(previous)
+        pytest.skip(f"the compiled kernels do not load: {compiled.status()}")
+    yield
+    compiled.set_enabled(previous)
+
+
+def _both(function):
+    """``function()`` with the compiled kernels, then with the NumPy code."""
+    got = function()
+    with compiled.disabled():
+        reference = function()
+    return got, reference
+
+
+@pytest.mark.parametrize("engine", ["lookup", "octree"])
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("threshold", [0.5, 1.0, 2.3, 4.5])
+def test_carving_keeps_the_same_points_and_counts(engine, seed, threshold):
+    """Views of different image sizes, lattices that are not a multiple of the cell size."""
+    projections, masks = random_case(seed, n_views=2 + seed % 3, shape=(96, 80) if seed % 2 else (64, 100))
+    k = 37 + 6 * seed
+    lattice = Lattice(cube_half_edge_mm(projections), k)
+    root, leaf = cell_sizes(engine, k)
+
+    def carve():
+        return carve_hierarchical(lattice, projections, masks, threshold_px=threshold, root_size=root, leaf_size=leaf)
+
+    got, reference = _both(carve)
+    np.testing.assert_array_equal(got.points_mm, reference.points_mm)
+    assert got.survivors_per_view == reference.survivors_per_view
+    assert got.order == reference.order
+
+
+def test_carving_of_a_view_that_keeps_nothing_says_which_view():
+    """Nothing kept: the compiled path hands over to the NumPy code, whose counts say which view
+    removed the last cells (the empty-hull error message)."""
+    projections, masks = random_case(3, n_views=3)
+    masks = [m.copy() for m in masks]
+    masks[1][:] = False
+    masks[1][0, 0] = True  # one pixel in a corner: nothing in the cube projects near it with the others
+    lattice = Lattice(cube_half_edge_mm(projections), 40)
+    got, reference = _both(lambda: carve_hierarchical(lattice, projections, masks, threshold_px=1.0, root_size=16,
+                                                      leaf_size=4))
+    assert len(got.points_mm) == len(reference.points_mm) == 0
+    assert got.survivors_per_view == reference.survivors_per_view
+
+
+def test_reconstruction_and_centerlines_equal_on_peer_studies(peer_synthetic_dir):
+    for name in ("clinical_tortuous_003", "perpendicular_simple_002", "perpendicular_moderate_005"):
+        study = load_study(peer_synthetic_dir / name)
+
+        def run():
+            result = reconstruct(study.projections, study.masks, resolution=100, tree=False)
+            rows = extract_centerlines(result.vessel_points_mm, study.projections, study.masks, keep_duplicates=True)
+            return result.vessel_points_mm, result.centerline_points_mm, rows
+
+        got, reference = _both(run)
+        for a, b in zip(got, reference):
+            np.testing.assert_array_equal(a, b, err_msg=name)
+
+
+def _brute_nearest(points, query, tie, rank):
+    """Every distance, as cKDTree computes it; the lowest rank within ``tie`` of the nearest."""
+    difference = points[None, :, :] - query[:, None, :]
+    distance = np.sqrt(difference[..., 0] ** 2 + difference[..., 1] ** 2)
+    nearest = distance.min(axis=1)
+    tied = distance <= nearest[:, None] + tie
+    ranked = np.where(tied, rank[None, :], np.iinfo(np.int64).max)
+    return nearest, np.argmin(ranked, axis=1)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_nearest_with_ties_equals_brute_force_and_the_kdtree_path(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 400))
+    if seed % 4 == 0:
+        points = rng.integers(0, 12, (n, 2)).astype(float)  # many exact ties, repeated points
+    elif seed % 4 == 1:
+        points = np.stack([rng.uniform(-50, 50, n), np.full(n, 3.0)], axis=1)  # on a line: no area
+    elif seed % 4 == 2:
+        points = np.repeat(rng.uniform(-5, 5, (1, 2)), n, axis=0)  # all at one place
+    else:
+        points = rng.normal(0, 30, (n, 2)) * np.array([1.0, 0.01])
+    query = np.concatenate([rng.integers(-3, 15, (60, 2)).astype(float), rng.uniform(-1e4, 1e4, (5, 2)), points[:3]])
+    rank = rng.permutation(n)
+    (distance, index), (ref_distance, ref_index) = _both(lambda: nearest_with_ties(points, query, 1e-9, rank))
+    brute_distance, brute_index = _brute_nearest(points, query, 1e-9, rank)
+    np.testing.assert_array_equal(index, brute_index)
+    np.testing.assert_array_equal(ref_index, brute_index)
+    np.testing.assert_allclose(distance, brute_distance, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ref_distance, brute_distance, rtol=0, atol=1e-12)
+
+
+def test_nearest_of_projected_lattice_points_equals_the_kdtree_path():
+    """The centerline step's case: a lattice seen in a view (rows of exactly equidistant points)."""
+    view = CArmGeometry(30, 30, 1200, 800, (0.35, 0.35), (512, 512)).projection()
+    axis = np.linspace(-10, 10, 21)
+    lattice = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    uv = view.project(lattice)
+    query = np.stack(np.meshgrid(np.arange(200, 320), np.arange(200, 320)), -1).reshape(-1, 2).astype(float)
+    got, reference = _both(lambda: nearest_with_ties(uv, query, 1e-9))
+    np.testing.assert_array_equal(got[1], reference[1])
+    np.testing.assert_array_equal(got[0], cKDTree(uv).query(query)[0])
+
+
+def test_the_environment_switch_and_status():
+    code = "from angiohull import compiled; print(compiled.kernels() is None); print(compiled.status())"
+    env = dict(os.environ, ANGIOHULL_COMPILED="0")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert out.splitlines() == ["True", "NumPy (compiled kernels disabled)"]
+    assert compiled.status() == f"numba {numba.__version__}"
+    with compiled.disabled():
+        assert compiled.kernels() is None
+    assert compiled.kernels() is not None
