@@ -6,7 +6,8 @@ a first run that imports everything):
 * on ``--studies`` of the authors' 48 studies (``../shared/benchmarks/peer-synthetic``), K = 100:
   the cube and carving, the centerline step (ours: the Guo-Hall thinning of ``angiohull.thinning``
   and the nearest candidates; ``skimage.morphology.thin`` for comparison), the whole paper-preset
-  reconstruction with centerlines (no vessel tree: the authors' code has none), and their recorded
+  reconstruction with centerlines (no vessel tree: the authors' code has none), the same with the
+  NumPy code only (``angiohull.compiled`` off: what an install without numba runs), and their recorded
   carving time ``peer_time_s`` (one process on a 2-core machine) plus their centerline and
   bifurcation steps (``--peer-centerline-s``, 0.07 s, measured with their code on this 2-core
   machine);
@@ -15,7 +16,7 @@ a first run that imports everything):
   (shifts; shifts and scales with the view also scaled by 1.05), and in 8 views with one moved;
 * the metrics of ``angiohull evaluate`` (3D scores, both Dice2D) at K = 1024;
 * process start, in fresh interpreters: ``angiohull --help`` and ``angiohull evaluate`` (wall time
-  of the whole command).
+  of the whole command), the latter also with ``ANGIOHULL_COMPILED=0`` (no numba import).
 
     python benchmarks/pipeline.py [--studies 12] [--repeats 5] [--output docs/results/pipeline.md]
 """
@@ -69,9 +70,14 @@ def _peer_rows(count: int) -> list[dict]:
 def reconstruction_times(count: int, repeats: int, peer_centerline_s: float) -> list[dict]:
     from skimage.morphology import thin
 
+    from angiohull import compiled
     from angiohull.reconstruction import extract_centerlines, reconstruct
     from angiohull.study import load_study
     from angiohull.thinning import guo_hall_thin
+
+    def numpy_only(function):
+        with compiled.disabled():
+            return function()
 
     out = []
     for row in _peer_rows(count):
@@ -85,6 +91,10 @@ def reconstruction_times(count: int, repeats: int, peer_centerline_s: float) -> 
             "carving": lambda: reconstruct(projections, masks, resolution=100, centerlines=False, tree=False),
             "centerlines": lambda: extract_centerlines(carved.vessel_points_mm, projections, masks),
             "whole": lambda: reconstruct(projections, masks, resolution=100, centerlines=True, tree=False),
+            "carving_numpy": lambda: numpy_only(lambda: reconstruct(projections, masks, resolution=100,
+                                                                    centerlines=False, tree=False)),
+            "whole_numpy": lambda: numpy_only(lambda: reconstruct(projections, masks, resolution=100, centerlines=True,
+                                                                  tree=False)),
             "thin_ours": lambda: [guo_hall_thin(m, keep_edge=True) for m in masks],
             "thin_skimage": lambda: [thin(m) for m in masks],
             "refined": lambda: reconstruct(projections, masks, preset="refined", centerlines=False, tree=False),
@@ -92,9 +102,12 @@ def reconstruction_times(count: int, repeats: int, peer_centerline_s: float) -> 
         authors = float(row["peer_time_s"]) + peer_centerline_s
         out.append({"case": row["case"], **times, "peer_carving_s": float(row["peer_time_s"]),
                     "authors_whole_s": authors, "ratio_whole": authors / times["whole"],
-                    "ratio_kdtree": times["kdtree"] / times["whole"]})
+                    "ratio_kdtree": times["kdtree"] / times["whole"],
+                    "ratio_whole_numpy": authors / times["whole_numpy"],
+                    "ratio_kdtree_numpy": times["kdtree"] / times["whole_numpy"]})
         print(f"  {row['case']:<28} whole {1e3 * times['whole']:6.1f} ms (carving {1e3 * times['carving']:5.1f}, "
-              f"centerlines {1e3 * times['centerlines']:5.1f}), authors {authors:.2f} s: {authors / times['whole']:5.0f}x; "
+              f"centerlines {1e3 * times['centerlines']:5.1f}; NumPy only {1e3 * times['whole_numpy']:5.1f}), "
+              f"authors {authors:.2f} s: {authors / times['whole']:5.0f}x; "
               f"refined {times['refined']:.3f} s", file=sys.stderr, flush=True)
     return out
 
@@ -154,7 +167,8 @@ def process_times(repeats: int) -> dict:
     exe = shutil.which("angiohull") or f"{sys.executable} -m angiohull.cli"
     study = SHARED / "benchmarks" / "peer-synthetic" / "clinical_moderate_000"
     commands = {"angiohull --help": f"{exe} --help",
-                "angiohull evaluate (K = 100, an authors' study)": f"{exe} evaluate {study} --json"}
+                "angiohull evaluate (K = 100, an authors' study)": f"{exe} evaluate {study} --json",
+                "the same, ANGIOHULL_COMPILED=0": f"ANGIOHULL_COMPILED=0 {exe} evaluate {study} --json"}
     out = {}
     for name, command in commands.items():
         seconds = []
@@ -177,6 +191,9 @@ def main(argv=None) -> int:
     parser.add_argument("--output", type=Path, default=None, help="Markdown report (raw numbers beside it, .json)")
     args = parser.parse_args(argv)
     wall = time.perf_counter()
+    from angiohull import compiled
+
+    compiled_status = compiled.status()
     print("reconstruction (authors' studies):", file=sys.stderr)
     rows = reconstruction_times(args.studies, args.repeats, args.peer_centerline_s)
     print("calibration:", file=sys.stderr)
@@ -194,6 +211,7 @@ def main(argv=None) -> int:
         "",
         f"`python benchmarks/pipeline.py --studies {args.studies} --repeats {args.repeats}`, "
         f"{datetime.date.today().isoformat()}, {platform.machine()}, {os.cpu_count()} CPUs, {library_versions()}, "
+        f"kernels: {compiled_status}, "
         f"{time.perf_counter() - wall:.0f} s wall. Medians over {len(rows)} of the authors' studies "
         f"(each a median of {args.repeats} interleaved repeats); the authors' whole reconstruction is their "
         f"recorded carving time plus {args.peer_centerline_s:g} s of centerline and bifurcation steps. Those "
@@ -204,6 +222,8 @@ def main(argv=None) -> int:
         "|---|---|---|---|",
         f"| cube + carving, K = 100 | {med('peer_carving_s'):.2f} s | {1e3 * med('carving'):.1f} ms | "
         f"{med('peer_carving_s') / med('carving'):.0f}x |",
+        f"| the same, NumPy code only (no numba) | {med('peer_carving_s'):.2f} s | {1e3 * med('carving_numpy'):.1f} ms | "
+        f"{med('peer_carving_s') / med('carving_numpy'):.0f}x |",
         f"| centerline step (3 views) | {args.peer_centerline_s:.3f} s (with bifurcations) | "
         f"{1e3 * med('centerlines'):.1f} ms | {args.peer_centerline_s / med('centerlines'):.1f}x |",
         f"| whole reconstruction incl. centerlines, K = 100 | {med('authors_whole_s'):.2f} s | "
@@ -211,6 +231,9 @@ def main(argv=None) -> int:
         f"min {min(r['ratio_whole'] for r in rows):.0f}x) |",
         f"| the same, against the paper's procedure run here (`--engine kdtree`, centerlines) | "
         f"{med('kdtree'):.2f} s | {1e3 * med('whole'):.1f} ms | {med('ratio_kdtree'):.0f}x |",
+        f"| whole reconstruction with the NumPy code only (no numba) | {med('authors_whole_s'):.2f} s | "
+        f"{1e3 * med('whole_numpy'):.1f} ms | {med('ratio_whole_numpy'):.0f}x (against the paper's procedure "
+        f"run here: {med('ratio_kdtree_numpy'):.0f}x) |",
         f"| Guo-Hall thinning, 3 masks | - | {1e3 * med('thin_ours'):.1f} ms (skimage's thin: "
         f"{1e3 * med('thin_skimage'):.1f} ms) | {med('thin_skimage') / med('thin_ours'):.1f}x skimage |",
         f"| `--preset refined`, whole, K = 256 | - | {med('refined'):.3f} s | - |",
