@@ -146,17 +146,23 @@ def _cell_may_be_kept(axis, k, i, j, l, size, matrices, tables, shapes, reach): 
 
 
 @numba.njit(**_JIT)
-def carve_lattice(axis, root, leaf, matrices, tables, shapes, padded, pads, threshold, reach_px,  # pragma: no cover
-                  footprint_reach):
+def carve_lattice(axis, root, leaf, matrices, masks, shapes, threshold, reach_px, footprint_reach,  # pragma: no cover
+                  distances, band_slack):
     """The points of the lattice ``axis**3`` that every view keeps, in lattice order, as
     :func:`~angiohull.reconstruction.hierarchical.carve_hierarchical` finds them (views in the
-    order given): cells of ``root**3`` points culled by their footprints, then their ``leaf**3``
-    sub-cells, then each point of a surviving leaf by :class:`MaskLookup`'s window test.
+    order given): cells of ``root**3`` points culled by their footprints, then their halves down to
+    ``leaf**3``, then each point of a surviving leaf by :class:`MaskLookup`'s window test.
 
-    ``tables`` (views, R + 1, C + 1) summed-area tables and ``padded`` (views, R', C') masks padded
-    by ``pads`` pixels, each view's own extent given by ``shapes`` (rows, cols). Returns the kept
-    points (n, 3) and the points alive after each view.
+    ``masks`` (views, R, C) uint8 0/1, each view's own extent given by ``shapes`` (rows, cols; the
+    rest zeros). ``distances`` (views, R, C): each mask's distance transform, for the wide
+    thresholds where :class:`MaskLookup` decides by it first (within ``band_slack`` of the
+    threshold, by the window); an empty array otherwise. Returns the kept points (n, 3) and the
+    points alive after each view.
     """
+    n_masks, most_rows, most_cols = masks.shape
+    tables = np.empty((n_masks, most_rows + 1, most_cols + 1), np.int32)
+    for view in range(n_masks):
+        tables[view] = summed_area_table(masks[view])
     k = axis.size
     n_views = matrices.shape[0]
     n_leaf = (k + leaf - 1) // leaf
@@ -216,8 +222,8 @@ def carve_lattice(axis, root, leaf, matrices, tables, shapes, padded, pads, thre
                     z = axis[l]
                     keep = True
                     for view in range(n_views):
-                        if not _near_mask(matrices[view], padded[view], shapes[view, 0], shapes[view, 1], pads[view],
-                                          threshold, reach_px, x, y, z):
+                        if not _near_mask(matrices[view], masks[view], shapes[view, 0], shapes[view, 1], threshold,
+                                          reach_px, x, y, z, distances, view, band_slack):
                             keep = False
                             break
                         survivors[view] += 1
@@ -235,25 +241,40 @@ def carve_lattice(axis, root, leaf, matrices, tables, shapes, padded, pads, thre
 
 
 @numba.njit(**_JIT)
-def _near_mask(m, padded, rows, cols, pad, threshold, reach, x, y, z):  # pragma: no cover - compiled
+def _near_mask(m, mask, rows, cols, threshold, reach, x, y, z, distances, view, band_slack):  # pragma: no cover
     """The point is in front of the source and a mask pixel centre lies strictly closer than the
-    threshold to its projection (:meth:`MaskLookup._near_window`, the same arithmetic)."""
+    threshold to its projection (:meth:`MaskLookup.near_uv`, the same arithmetic: by the distance
+    transform where it is given and clear of the threshold, else by reading the window)."""
     w = x * m[2, 0] + y * m[2, 1] + z * m[2, 2] + m[2, 3]
     if not w > 0:
         return False
     u = (x * m[0, 0] + y * m[0, 1] + z * m[0, 2] + m[0, 3]) / w
     v = (x * m[1, 0] + y * m[1, 1] + z * m[1, 2] + m[1, 3]) / w
+    if distances.shape[0] > 0:
+        ru = np.floor(u + 0.5)
+        rv = np.floor(v + 0.5)
+        if ru >= 0 and ru < cols and rv >= 0 and rv < rows:  # False for nan
+            to_centre = np.sqrt((u - ru) ** 2 + (v - rv) ** 2)
+            nearest = distances[view, int(rv), int(ru)]
+            if nearest + to_centre < threshold - band_slack:
+                return True
+            if nearest - to_centre >= threshold + band_slack:
+                return False
     if np.isnan(u):
         u = -1e9
     if np.isnan(v):
         v = -1e9
     fu = np.floor(min(max(u, -reach - 1.0), cols + reach))
     fv = np.floor(min(max(v, -reach - 1.0), rows + reach))
-    row = int(fv) + pad
-    col = int(fu) + pad
+    row = int(fv)
+    col = int(fu)
     for b in range(1 - reach, reach + 1):
+        r = row + b
+        if r < 0 or r >= rows:
+            continue
         for a in range(1 - reach, reach + 1):
-            if padded[row + b, col + a]:
+            c = col + a
+            if 0 <= c < cols and mask[r, c]:
                 du = u - (fu + a)
                 dv = v - (fv + b)
                 if np.sqrt(du * du + dv * dv) < threshold:

@@ -25,7 +25,8 @@ import numpy as np
 from ..compiled import kernels
 from ..geometry import Projection
 from .cube import Lattice
-from .engines import CHUNK_POINTS, ENGINES, CarveOutcome, MaskLookup, project_row, sparsest_first
+from .engines import (_BAND_FROM_REACH, _BAND_SLACK_PX, CHUNK_POINTS, ENGINES, CarveOutcome, MaskLookup,
+                      _distance_to_mask, project_row, sparsest_first)
 
 __all__ = ["carve_hierarchical", "carve_lookup", "carve_octree", "cell_sizes", "FootprintTest", "HIERARCHICAL_ENGINES"]
 
@@ -170,24 +171,24 @@ def _carve_compiled(lattice: Lattice, projections: Sequence[Projection], masks: 
     """:func:`carve_hierarchical` (every view, in the order given) by the compiled kernel: the same
     cells culled, the same exact test, the same kept points and survivor counts."""
     compiled = kernels()
-    reach = int(np.ceil(float(threshold_px)))
-    pad = 2 * reach + 1  # as MaskLookup pads
-    rows = max(m.shape[0] for m in masks)
-    cols = max(m.shape[1] for m in masks)
-    n = len(masks)
-    tables = np.zeros((n, rows + 1, cols + 1), dtype=np.int32)
-    padded = np.zeros((n, rows + 2 * pad, cols + 2 * pad), dtype=np.bool_)
-    shapes = np.zeros((n, 2), dtype=np.int64)
-    for i, mask in enumerate(masks):
-        mask = np.ascontiguousarray(mask, dtype=bool)
-        r, c = mask.shape
-        tables[i, :r + 1, :c + 1] = compiled.summed_area_table(mask.view(np.uint8))
-        padded[i, pad:pad + r, pad:pad + c] = mask
-        shapes[i] = r, c
+    shapes = np.array([m.shape for m in masks], dtype=np.int64)
+    if all(m.shape == masks[0].shape for m in masks):
+        stacked = np.stack([np.asarray(m, dtype=bool) for m in masks]).view(np.uint8)
+    else:  # views of different sizes: zeros beyond each view's own extent
+        stacked = np.zeros((len(masks), shapes[:, 0].max(), shapes[:, 1].max()), dtype=np.uint8)
+        for i, m in enumerate(masks):
+            stacked[i, :m.shape[0], :m.shape[1]] = np.asarray(m, dtype=bool)
     matrices = np.stack([np.asarray(p.matrix, dtype=np.float64) for p in projections])
-    points, survivors = compiled.carve_lattice(lattice.axis_mm(), int(root_size), int(leaf_size), matrices, tables,
-                                               shapes, padded, np.full(n, pad, dtype=np.int64), float(threshold_px),
-                                               reach, float(threshold_px) + _MARGIN_PX)
+    reach = int(np.ceil(float(threshold_px)))
+    distances = np.zeros((0, 0, 0))
+    if reach >= _BAND_FROM_REACH:  # as MaskLookup: the distance transform decides first
+        distances = np.full(stacked.shape, np.inf)
+        for i, m in enumerate(masks):
+            if m.any():
+                distances[i, :m.shape[0], :m.shape[1]] = _distance_to_mask(np.asarray(m, dtype=bool))
+    points, survivors = compiled.carve_lattice(lattice.axis_mm(), int(root_size), int(leaf_size), matrices, stacked,
+                                               shapes, float(threshold_px), reach, float(threshold_px) + _MARGIN_PX,
+                                               distances, _BAND_SLACK_PX)
     return CarveOutcome(points, tuple(int(s) for s in survivors))
 
 
