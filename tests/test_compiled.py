@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 from angiohull import compiled
 from angiohull.geometry import CArmGeometry, cube_half_edge_mm
 from angiohull.reconstruction import Lattice, extract_centerlines, reconstruct
+from angiohull.reconstruction.centreline_fit import Centreline
 from angiohull.reconstruction.hierarchical import carve_hierarchical, cell_sizes
 from angiohull.reconstruction.nearest import nearest_with_ties
 from angiohull.study import load_study
@@ -127,6 +128,21 @@ def test_nearest_of_projected_lattice_points_equals_the_kdtree_path():
     got, reference = _both(lambda: nearest_with_ties(uv, query, 1e-9))
     np.testing.assert_array_equal(got[1], reference[1])
     np.testing.assert_array_equal(got[0], cKDTree(uv).query(query)[0])
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_distances_to_a_centreline_equal_the_numpy_path(seed):
+    """Points on, near, far from and off the image, not finite; cutoffs as a Python float (compared
+    with the single-precision floor as NumPy compares them), a float64 one, and one past the floor's
+    reach (every point asks the k-d tree)."""
+    _, masks = random_case(seed, n_views=1, shape=(90, 120))
+    centre_line = Centreline(masks[0])
+    rng = np.random.default_rng(seed)
+    uv = np.concatenate([centre_line.uv_px + rng.normal(0, 1.5, centre_line.uv_px.shape),
+                         rng.uniform(-20, 140, (400, 2)), [[np.nan, 3.0], [np.inf, 1.0], [-5.0, 40.0]]])
+    for cutoff in (2.0, np.float64(1.3), 1.0 + 1e-7, 6.0):
+        got, reference = _both(lambda: centre_line.distances(uv, cutoff))
+        np.testing.assert_array_equal(got, reference, err_msg=str(cutoff))
 
 
 def test_the_environment_switch_and_status():

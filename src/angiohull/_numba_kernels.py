@@ -386,3 +386,45 @@ def _ring_lowest_rank(points, order, start, n0, n1, qa, qb, ring, a, b, bound, r
             if np.sqrt(d0 * d0 + d1 * d1) <= bound and (chosen < 0 or rank[p] < rank[chosen]):
                 chosen = p
     return chosen
+
+
+# --- distances to a 2D centreline (angiohull.reconstruction.centreline_fit) ----------------------
+
+@numba.njit(**_JIT)
+def centreline_distances(u, v, cutoff, floor_limit, use_floor, floor, candidate_row, candidate_u,
+                         candidate_v):  # pragma: no cover - compiled
+    """:meth:`Centreline.distances` for the points it measures itself: ``cutoff`` where a point is
+    not finite or its nearest pixel's floor exceeds ``floor_limit`` (the cutoff as NumPy compares it
+    with the single-precision floor), else the least distance to that pixel's candidates (rows of
+    ``candidate_u``, ``candidate_v`` padded with inf at the end), at most ``cutoff``. Returns the
+    distances and which points the caller must ask its k-d tree (off the image, or every point
+    when ``use_floor`` is False)."""
+    n = u.size
+    rows, cols = floor.shape
+    distance = np.full(n, cutoff)
+    ask = np.zeros(n, np.bool_)
+    for i in range(n):
+        a = u[i]
+        b = v[i]
+        if not (np.isfinite(a) and np.isfinite(b)):
+            continue
+        iu = np.floor(a + 0.5)
+        iv = np.floor(b + 0.5)
+        if not use_floor or not (iu >= 0 and iu < cols and iv >= 0 and iv < rows):
+            ask[i] = True
+            continue
+        r = int(iv)
+        c = int(iu)
+        if not floor[r, c] <= floor_limit:
+            continue
+        row = candidate_row[r, c]
+        least = np.inf
+        for k in range(candidate_u.shape[1]):
+            cu = candidate_u[row, k]
+            if cu == np.inf:
+                break
+            du = a - cu
+            dv = b - candidate_v[row, k]
+            least = min(least, du * du + dv * dv)
+        distance[i] = min(np.sqrt(least), cutoff)
+    return distance, ask

@@ -44,9 +44,10 @@ from typing import Sequence
 import numpy as np
 from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
-from ..thinning import guo_hall_thin as thin
 
+from ..compiled import kernels
 from ..geometry import Projection
+from ..thinning import guo_hall_thin as thin
 from .epipolar import EpipolarPencil, ray_directions
 
 __all__ = ["Centreline", "centreline_rays", "match_pair", "fit_view_shift", "fit_view_scale", "polish_shifts",
@@ -99,6 +100,19 @@ class Centreline:
         the image go to the k-d tree; points that are not finite (no projection) count as farther."""
         distance = np.full(len(uv_px), float(cutoff_px))
         if self.tree is None or len(uv_px) == 0:
+            return distance
+        compiled = kernels()
+        if compiled is not None and self._candidates is not None:
+            points = np.asarray(uv_px, dtype=np.float64)
+            # the floor is compared as NumPy compares it with this cutoff (a Python float: in single precision)
+            limit = float(np.asarray(cutoff_px, dtype=np.result_type(self.distance_floor_px, cutoff_px)))
+            distance, ask = compiled.centreline_distances(
+                np.ascontiguousarray(points[:, 0]), np.ascontiguousarray(points[:, 1]), float(cutoff_px), limit,
+                cutoff_px < _FLOOR_REACH_PX - np.sqrt(0.5), self.distance_floor_px, self._candidate_row,
+                self._wide_u, self._wide_v)
+            if ask.any():
+                found, _ = self.tree.query(points[ask], distance_upper_bound=cutoff_px)
+                distance[ask] = np.minimum(found, cutoff_px)  # misses come back as inf
             return distance
         finite = np.all(np.isfinite(uv_px), axis=1)
         rows, cols = self.distance_floor_px.shape
