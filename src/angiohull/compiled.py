@@ -1,7 +1,7 @@
 """Optional compiled kernels for the hot loops (``pip install "angiohull[fast]"``: numba).
 
-The carving, the Guo–Hall thinning and the centerline step's nearest-neighbour search each have a
-NumPy implementation, which is the reference, and a compiled one (:mod:`angiohull._numba_kernels`)
+The carving, the Guo–Hall thinning, the centerline step's nearest-neighbour search and the
+calibration's distances to a 2D centreline each have a NumPy implementation, which is the reference, and a compiled one (:mod:`angiohull._numba_kernels`)
 that computes the same thing with the same arithmetic: the same points, skeletons and neighbours
 bit for bit (the tests compare them). The compiled kernels are used when numba can be imported;
 set the environment variable ``ANGIOHULL_COMPILED=0`` (or call :func:`set_enabled`) to run the
