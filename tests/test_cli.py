@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+from angiohull import compiled
 from angiohull.cli import main
 from angiohull.geometry import CArmGeometry
 from angiohull.io import read_points
@@ -42,6 +43,7 @@ def test_reconstruct_writes_ply_report_and_figure(tmp_path, capsys):
                                  "device": "cpu", "min_views": None, "calibrate": False,
                                  "calibrate_scale": False, "preset": "paper", "tree": True, "method": "hull"}
     assert report["engine"] == "octree"
+    assert report["kernels"] == compiled.status()  # "numba <version>" or why the NumPy code ran
     assert [v["name"] for v in report["views"]] == ["ap", "lao90"]
     assert all(v["dice2d_reprojection"] > 80 for v in report["views"])
     assert report["views"][1]["carm"]["clinical"] == "LAO 90 CRA 0"

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from . import __version__
+from . import __version__, compiled
 from .io import write_points_ply
 from .metrics import PAPER_DETECTOR_SPACING_MM, dice2d, dice2d_paper, paper_dilation_side_px, scores_3d
 from .rasterise import boundary_cells, cell_silhouette
@@ -299,6 +299,7 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
     report: dict[str, Any] = {
         "angiohull_version": __version__,
         "python": platform.python_version(),
+        "kernels": compiled.status(),  # numba's compiled kernels or the NumPy code (the same results)
         "study": str(study.root) if study.root is not None else None,
         "options": {"resolution": result.lattice.resolution, "threshold_px": options.threshold_px,
                     "engine": options.engine, "centerlines": options.centerlines, "device": options.device,
