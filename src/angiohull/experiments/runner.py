@@ -39,7 +39,7 @@ from typing import Any, Iterator, Optional, Sequence, TextIO
 import numpy as np
 import yaml
 
-from .. import __version__
+from .. import __version__, compiled
 from .._yaml import read_yaml_file
 from ..errors import AngiohullError, OutputError
 from .cases import STATUSES, expand_cases, row_columns, run_case
@@ -536,6 +536,7 @@ def _run_locked(config: ExperimentConfig, run_dir: Path, cases: list[dict[str, A
             "started": started, "wall_s": round(summary.wall_s, 3), "cases_run": summary.done_now,
             "executor": executor, "interrupted": summary.interrupted, "python": platform.python_version(),
             "numpy": np.__version__, "machine": platform.machine(), "cpus": default_workers(),
+            "kernels": compiled.status(),  # in this process; workers started here inherit its environment
         })
         if stream is not None:
             progress.show(final=True)
