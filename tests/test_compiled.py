@@ -150,6 +150,13 @@ def test_the_environment_switch_and_status():
     env = dict(os.environ, ANGIOHULL_COMPILED="0")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     assert out.splitlines() == ["True", "NumPy (compiled kernels disabled)"]
+    # numba missing: the NumPy code runs, and the status says why
+    code = ("import sys; sys.modules['numba'] = None; from angiohull import compiled; "
+            "from angiohull.thinning import guo_hall_thin; import numpy as np; "
+            "print(compiled.kernels() is None); print(int(guo_hall_thin(np.ones((5, 9), bool)).sum())); "
+            "print(compiled.status())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.splitlines()
+    assert out[:2] == ["True", "5"] and out[2].startswith("NumPy (numba not available: ModuleNotFoundError")
     assert compiled.status() == f"numba {numba.__version__}"
     with compiled.disabled():
         assert compiled.kernels() is None

@@ -31,7 +31,7 @@ def kernels() -> ModuleType | None:
     if _state["module"] is None and _state["error"] is None:
         try:
             from . import _numba_kernels
-        except ImportError as exc:  # numba absent (or broken): the NumPy code runs
+        except Exception as exc:  # noqa: BLE001 - numba absent, broken, or unable to cache: the NumPy code runs
             _state["error"] = f"{type(exc).__name__}: {exc}"
         else:
             _state["module"] = _numba_kernels
