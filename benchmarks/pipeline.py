@@ -16,7 +16,7 @@ a first run that imports everything):
   (shifts; shifts and scales with the view also scaled by 1.05), and in 8 views with one moved;
 * the metrics of ``angiohull evaluate`` (3D scores, both Dice2D) at K = 1024;
 * process start, in fresh interpreters: ``angiohull --help`` and ``angiohull evaluate`` (wall time
-  of the whole command), the latter also with ``ANGIOHULL_COMPILED=0`` (no numba import).
+  of the whole command), the latter also with ``ANGIOHULL_COMPILED=1`` (numba's kernels loaded).
 
     python benchmarks/pipeline.py [--studies 12] [--repeats 5] [--output docs/results/pipeline.md]
 """
@@ -167,8 +167,9 @@ def process_times(repeats: int) -> dict:
     exe = shutil.which("angiohull") or f"{sys.executable} -m angiohull.cli"
     study = SHARED / "benchmarks" / "peer-synthetic" / "clinical_moderate_000"
     commands = {"angiohull --help": f"{exe} --help",
-                "angiohull evaluate (K = 100, an authors' study)": f"{exe} evaluate {study} --json",
-                "the same, ANGIOHULL_COMPILED=0": f"ANGIOHULL_COMPILED=0 {exe} evaluate {study} --json"}
+                "angiohull evaluate (K = 100, an authors' study; the NumPy code, as the command line chooses)":
+                    f"{exe} evaluate {study} --json",
+                "the same with numba's kernels (ANGIOHULL_COMPILED=1)": f"ANGIOHULL_COMPILED=1 {exe} evaluate {study} --json"}
     out = {}
     for name, command in commands.items():
         seconds = []

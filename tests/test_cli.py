@@ -5,7 +5,6 @@ import json
 import numpy as np
 import pytest
 
-from angiohull import compiled
 from angiohull.cli import main
 from angiohull.geometry import CArmGeometry
 from angiohull.io import read_points
@@ -43,7 +42,8 @@ def test_reconstruct_writes_ply_report_and_figure(tmp_path, capsys):
                                  "device": "cpu", "min_views": None, "calibrate": False,
                                  "calibrate_scale": False, "preset": "paper", "tree": True, "method": "hull"}
     assert report["engine"] == "octree"
-    assert report["kernels"] == compiled.status()  # "numba <version>" or why the NumPy code ran
+    # a small job: the command line runs the NumPy code (loading numba would cost more than it saves)
+    assert report["kernels"].startswith("NumPy (a small job") or report["kernels"].startswith("NumPy (numba not")
     assert [v["name"] for v in report["views"]] == ["ap", "lao90"]
     assert all(v["dice2d_reprojection"] > 80 for v in report["views"])
     assert report["views"][1]["carm"]["clinical"] == "LAO 90 CRA 0"
@@ -152,3 +152,30 @@ def test_shared_names_agree_with_the_modules_that_implement_them():
     assert options.ENGINE_NAMES == tuple(sorted(ENGINES))
     assert options.AUTO_ENGINE in ENGINES
     assert REFINED.resolution == options.REFINED_RESOLUTION
+
+
+def test_the_command_line_chooses_the_kernels_that_pay(tmp_path, monkeypatch):
+    """numba's kernels for calibration, experiments and K >= 512; the NumPy code for a small job;
+    ANGIOHULL_COMPILED decides where it is set; the library's setting is restored afterwards."""
+    pytest.importorskip("numba", reason="numba is not installed (pip install '.[fast]')")
+    from angiohull import compiled
+    from angiohull.cli import _kernels_pay, build_parser
+
+    def pays(*arguments):
+        return _kernels_pay(build_parser(arguments[0]).parse_args(list(arguments)))
+
+    assert not pays("reconstruct", "study", "-o", "out") and not pays("evaluate", "study", "-k", "256")
+    assert not pays("demo")
+    assert pays("reconstruct", "study", "-o", "out", "--calibrate") and pays("evaluate", "study", "-k", "512")
+    assert pays("experiment", "general", "-o", "runs")
+    study = ball_study(tmp_path / "study")
+    monkeypatch.delenv("ANGIOHULL_COMPILED", raising=False)
+    before = compiled.status()
+    assert main(["reconstruct", str(study.parent), "-o", str(tmp_path / "small"), "-k", "20", "--no-figure",
+                 "--no-viewer", "--no-tree", "-q"]) == 0
+    assert json.loads((tmp_path / "small" / "report.json").read_text())["kernels"].startswith("NumPy (a small job")
+    assert compiled.status() == before
+    monkeypatch.setenv("ANGIOHULL_COMPILED", "1")
+    assert main(["reconstruct", str(study.parent), "-o", str(tmp_path / "forced"), "-k", "20", "--no-figure",
+                 "--no-viewer", "--no-tree", "-q"]) == 0
+    assert json.loads((tmp_path / "forced" / "report.json").read_text())["kernels"].startswith("numba ")

@@ -1024,6 +1024,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = next((a for a in arguments if not a.startswith("-")), "")  # top-level options have no values
     parser = build_parser(command)
     args = parser.parse_args(arguments)
+    from . import compiled
+
+    previous = None  # ANGIOHULL_COMPILED, where set, decides; else what pays for this command
+    if not compiled.chosen_by_environment():
+        previous = compiled.set_enabled(_kernels_pay(args), why_off="a small job: the command line runs the NumPy "
+                                        "code where loading numba costs more than it saves; ANGIOHULL_COMPILED=1 "
+                                        "runs it anyway")
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _WarningPrinter()
@@ -1038,6 +1045,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:  # output folders are written all or nothing: nothing half-written is left
         print(f"angiohull {args.command}: interrupted; nothing of this run was written", file=sys.stderr)
         return 130
+    finally:
+        if previous is not None:
+            compiled.set_enabled(previous)
+
+
+KERNELS_FROM_RESOLUTION = 512
+"""From this lattice resolution K on, the command line uses numba's compiled kernels (where numba is
+installed and ``ANGIOHULL_COMPILED`` is unset) for a single reconstruction."""
+
+
+def _kernels_pay(args) -> bool:
+    """Whether numba's compiled kernels pay for themselves in this command: loading them costs about
+    0.4 s per process (and a compile, once per installation), one reconstruction at K = 100 saves
+    about 15 ms; experiments, calibration and fine lattices save more than that (docs/engines.md)."""
+    return (args.command == "experiment" or bool(getattr(args, "calibrate", False))
+            or (getattr(args, "resolution", None) or 0) >= KERNELS_FROM_RESOLUTION)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,12 +1,16 @@
 """Optional compiled kernels for the hot loops (``pip install "angiohull[fast]"``: numba).
 
 The carving, the Guo–Hall thinning, the centerline step's nearest-neighbour search and the
-calibration's distances to a 2D centreline each have a NumPy implementation, which is the reference, and a compiled one (:mod:`angiohull._numba_kernels`)
-that computes the same thing with the same arithmetic: the same points, skeletons and neighbours
-bit for bit (the tests compare them). The compiled kernels are used when numba can be imported;
-set the environment variable ``ANGIOHULL_COMPILED=0`` (or call :func:`set_enabled`) to run the
-NumPy code instead. The first call of a kernel on a machine compiles it (a few seconds, once);
-later processes load it from numba's cache (at a terminal, a note on stderr says when it compiles).
+calibration's distances to a 2D centreline each have a NumPy implementation, which is the
+reference, and a compiled one (:mod:`angiohull._numba_kernels`) that computes the same thing with
+the same arithmetic: the same points, skeletons and neighbours bit for bit (the tests compare them).
+
+The library uses the compiled kernels when numba can be imported; the environment variable
+``ANGIOHULL_COMPILED=0`` (or :func:`set_enabled`, :func:`disabled`) runs the NumPy code instead.
+The command line chooses per command where ``ANGIOHULL_COMPILED`` is unset
+(:func:`angiohull.cli.main`: loading numba costs about 0.4 s a process). The first call of a
+kernel on a machine compiles it (10-20 s for all, once); later processes load it from numba's
+cache (at a terminal, a note on stderr says when it compiles).
 """
 
 from __future__ import annotations
@@ -17,11 +21,17 @@ import sys
 from types import ModuleType
 from typing import Iterator
 
-__all__ = ["kernels", "set_enabled", "disabled", "status"]
+__all__ = ["kernels", "set_enabled", "disabled", "status", "chosen_by_environment"]
 
 _OFF = {"0", "no", "false", "off"}
 _state: dict[str, object] = {"enabled": os.environ.get("ANGIOHULL_COMPILED", "1").strip().lower() not in _OFF,
-                             "module": None, "error": None}
+                             "module": None, "error": None, "why_off": "compiled kernels disabled"}
+
+
+def chosen_by_environment() -> bool:
+    """Whether ``ANGIOHULL_COMPILED`` is set (to anything): then the command line leaves the choice
+    to it (see :func:`angiohull.cli.main`)."""
+    return bool(os.environ.get("ANGIOHULL_COMPILED", "").strip())
 
 
 def kernels() -> ModuleType | None:
@@ -59,10 +69,12 @@ def _cached(module: ModuleType) -> bool:
         return True
 
 
-def set_enabled(enabled: bool) -> bool:
-    """Use the compiled kernels (where numba is installed) or not; returns the previous setting."""
+def set_enabled(enabled: bool, *, why_off: str = "compiled kernels disabled") -> bool:
+    """Use the compiled kernels (where numba is installed) or not; returns the previous setting.
+    ``why_off`` is what :func:`status` says while they are off."""
     previous = bool(_state["enabled"])
     _state["enabled"] = bool(enabled)
+    _state["why_off"] = why_off
     return previous
 
 
@@ -79,7 +91,7 @@ def disabled() -> Iterator[None]:
 def status() -> str:
     """One line for reports: whether the compiled kernels run, and why not."""
     if not _state["enabled"]:
-        return "NumPy (compiled kernels disabled)"
+        return f"NumPy ({_state['why_off']})"
     module = kernels()
     if module is None:
         return f"NumPy (numba not available: {_state['error']})"
