@@ -59,10 +59,9 @@ def guo_hall_thin_flat(flat, frozen, width, tables):  # pragma: no cover - compi
         n_deleted = 0
         for i in range(m):
             p = look[i]
-            code = 0
-            for bit in range(8):
-                if flat[p + offsets[bit]]:
-                    code |= 1 << bit
+            code = (flat[p - width] | (flat[p - width + 1] << 1) | (flat[p + 1] << 2) | (flat[p + width + 1] << 3)
+                    | (flat[p + width] << 4) | (flat[p + width - 1] << 5) | (flat[p - 1] << 6)
+                    | (flat[p - width - 1] << 7))  # p2 .. p9 (the image holds 0 / 1)
             if tables[subiteration, code]:
                 deleted[n_deleted] = p
                 n_deleted += 1
@@ -89,10 +88,10 @@ def guo_hall_thin_flat(flat, frozen, width, tables):  # pragma: no cover - compi
 # --- carving (angiohull.reconstruction.hierarchical) ---------------------------------------------
 
 @numba.njit(**_JIT)
-def summed_area_table(mask):  # pragma: no cover - compiled
-    """``table[r, c] = mask[:r, :c].sum()`` for a uint8 0/1 mask, int32 (masks under 2**31 pixels)."""
+def _fill_summed_area_table(mask, table):  # pragma: no cover - compiled
+    """``table[r, c] = mask[:r, :c].sum()`` for a uint8 0/1 mask, into an int32 (rows + 1, cols + 1)
+    array (masks under 2**31 pixels)."""
     rows, cols = mask.shape
-    table = np.empty((rows + 1, cols + 1), np.int32)
     table[0, :] = 0
     for r in range(rows):
         table[r + 1, 0] = 0
@@ -100,10 +99,9 @@ def summed_area_table(mask):  # pragma: no cover - compiled
         for c in range(cols):
             run += mask[r, c]
             table[r + 1, c + 1] = table[r, c + 1] + run
-    return table
 
 
-@numba.njit(**_JIT)
+@numba.njit(inline="always", **_JIT)
 def _box_may_be_kept(m, table, rows, cols, reach, x0, x1, y0, y1, z0, z1):  # pragma: no cover - compiled
     """:meth:`FootprintTest.may_keep` for one box (its corners' projections computed as
     ``project_row`` does)."""
@@ -133,7 +131,7 @@ def _box_may_be_kept(m, table, rows, cols, reach, x0, x1, y0, y1, z0, z1):  # pr
     return table[r1, c1] - table[r0, c1] - table[r1, c0] + table[r0, c0] > 0
 
 
-@numba.njit(**_JIT)
+@numba.njit(inline="always", **_JIT)
 def _cell_may_be_kept(axis, k, i, j, l, size, matrices, tables, shapes, reach):  # pragma: no cover
     for view in range(matrices.shape[0]):
         rows, cols = shapes[view, 0], shapes[view, 1]
@@ -162,7 +160,7 @@ def carve_lattice(axis, root, leaf, matrices, masks, shapes, threshold, reach_px
     n_masks, most_rows, most_cols = masks.shape
     tables = np.empty((n_masks, most_rows + 1, most_cols + 1), np.int32)
     for view in range(n_masks):
-        tables[view] = summed_area_table(masks[view])
+        _fill_summed_area_table(masks[view], tables[view])
     k = axis.size
     n_views = matrices.shape[0]
     n_leaf = (k + leaf - 1) // leaf
@@ -240,7 +238,7 @@ def carve_lattice(axis, root, leaf, matrices, masks, shapes, threshold, reach_px
     return kept[:n_kept].copy(), survivors
 
 
-@numba.njit(**_JIT)
+@numba.njit(inline="always", **_JIT)
 def _near_mask(m, mask, rows, cols, threshold, reach, x, y, z, distances, view, band_slack):  # pragma: no cover
     """The point is in front of the source and a mask pixel centre lies strictly closer than the
     threshold to its projection (:meth:`MaskLookup.near_uv`, the same arithmetic: by the distance
@@ -268,13 +266,14 @@ def _near_mask(m, mask, rows, cols, threshold, reach, x, y, z, distances, view, 
     fv = np.floor(min(max(v, -reach - 1.0), rows + reach))
     row = int(fv)
     col = int(fu)
+    inside = row + 1 - reach >= 0 and row + reach < rows and col + 1 - reach >= 0 and col + reach < cols
     for b in range(1 - reach, reach + 1):
         r = row + b
-        if r < 0 or r >= rows:
+        if not inside and (r < 0 or r >= rows):
             continue
         for a in range(1 - reach, reach + 1):
             c = col + a
-            if 0 <= c < cols and mask[r, c]:
+            if (inside or 0 <= c < cols) and mask[r, c]:
                 du = u - (fu + a)
                 dv = v - (fv + b)
                 if np.sqrt(du * du + dv * dv) < threshold:
@@ -344,50 +343,43 @@ def nearest_2d_with_ties(points, query, tie, rank, cell):  # pragma: no cover - 
     return distance, index
 
 
-@numba.njit(**_JIT)
-def _ring_cells(n0, n1, qa, qb, ring, out):  # pragma: no cover - compiled
-    """The grid cells at Chebyshev distance ``ring`` from cell (qa, qb), written to ``out``."""
-    count = 0
-    for i in range(max(qa - ring, 0), min(qa + ring, n0 - 1) + 1):
-        if i == qa - ring or i == qa + ring:
-            for j in range(max(qb - ring, 0), min(qb + ring, n1 - 1) + 1):
-                out[count] = i * n1 + j
-                count += 1
-        else:
-            for j in (qb - ring, qb + ring):
-                if 0 <= j < n1:
-                    out[count] = i * n1 + j
-                    count += 1
-    return count
-
-
-@numba.njit(**_JIT)
+@numba.njit(inline="always", **_JIT)
 def _ring_nearest(points, order, start, n0, n1, qa, qb, ring, a, b, best):  # pragma: no cover - compiled
-    cells = np.empty(8 * ring + 2, np.int64)
-    for c in cells[:_ring_cells(n0, n1, qa, qb, ring, cells)]:
-        for s in range(start[c], start[c + 1]):
-            p = order[s]
-            d0 = points[p, 0] - a
-            d1 = points[p, 1] - b
-            d = np.sqrt(d0 * d0 + d1 * d1)
-            if d < best:
-                best = d
+    """The least distance from (a, b) to the points of the cells at Chebyshev distance ``ring``
+    from cell (qa, qb), or ``best`` if that is less."""
+    for i in range(max(qa - ring, 0), min(qa + ring, n0 - 1) + 1):
+        step = 1 if i == qa - ring or i == qa + ring else 2 * ring  # a whole row, or its two ends
+        for j in range(qb - ring, qb + ring + 1, step):
+            if j < 0 or j >= n1:
+                continue
+            c = i * n1 + j
+            for s in range(start[c], start[c + 1]):
+                p = order[s]
+                d0 = points[p, 0] - a
+                d1 = points[p, 1] - b
+                d = np.sqrt(d0 * d0 + d1 * d1)
+                if d < best:
+                    best = d
     return best
 
 
-@numba.njit(**_JIT)
+@numba.njit(inline="always", **_JIT)
 def _ring_lowest_rank(points, order, start, n0, n1, qa, qb, ring, a, b, bound, rank, chosen):  # pragma: no cover
-    cells = np.empty(8 * ring + 2, np.int64)
-    for c in cells[:_ring_cells(n0, n1, qa, qb, ring, cells)]:
-        for s in range(start[c], start[c + 1]):
-            p = order[s]
-            d0 = points[p, 0] - a
-            d1 = points[p, 1] - b
-            if np.sqrt(d0 * d0 + d1 * d1) <= bound and (chosen < 0 or rank[p] < rank[chosen]):
-                chosen = p
+    """Of the points of the ring's cells within ``bound`` of (a, b), the one of lowest rank (or
+    ``chosen`` if that ranks lower)."""
+    for i in range(max(qa - ring, 0), min(qa + ring, n0 - 1) + 1):
+        step = 1 if i == qa - ring or i == qa + ring else 2 * ring
+        for j in range(qb - ring, qb + ring + 1, step):
+            if j < 0 or j >= n1:
+                continue
+            c = i * n1 + j
+            for s in range(start[c], start[c + 1]):
+                p = order[s]
+                d0 = points[p, 0] - a
+                d1 = points[p, 1] - b
+                if np.sqrt(d0 * d0 + d1 * d1) <= bound and (chosen < 0 or rank[p] < rank[chosen]):
+                    chosen = p
     return chosen
-
-
 # --- distances to a 2D centreline (angiohull.reconstruction.centreline_fit) ----------------------
 
 @numba.njit(**_JIT)
