@@ -39,6 +39,7 @@ def nearest_with_ties(points: np.ndarray, query: np.ndarray, tie: float, rank: n
     index : (M,) int array
         Index into ``points`` of the chosen point.
     """
+    points, query = np.asarray(points), np.asarray(query)
     rank = np.arange(len(points)) if rank is None else np.asarray(rank)
     compiled = kernels()
     if compiled is not None and points.ndim == 2 and points.shape[1] == 2 and len(points) and len(query) \
