@@ -331,22 +331,24 @@ def nearest_2d_with_ties(points, query, tie, rank, cell):  # pragma: no cover - 
         for ring in range(first, last + 1):
             if (ring - 1) * cell > best + tie:
                 break
-            best = _ring_nearest(points, order, start, n0, n1, qa, qb, ring, a, b, best)
+            best, _ = _ring_scan(points, order, start, n0, n1, qa, qb, ring, a, b, False, best, 0.0, rank, -1)
         bound = best + tie
         chosen = -1
         for ring in range(first, last + 1):
             if (ring - 1) * cell > bound:
                 break
-            chosen = _ring_lowest_rank(points, order, start, n0, n1, qa, qb, ring, a, b, bound, rank, chosen)
+            _, chosen = _ring_scan(points, order, start, n0, n1, qa, qb, ring, a, b, True, best, bound, rank, chosen)
         distance[q] = best
         index[q] = chosen
     return distance, index
 
 
 @numba.njit(inline="always", **_JIT)
-def _ring_nearest(points, order, start, n0, n1, qa, qb, ring, a, b, best):  # pragma: no cover - compiled
-    """The least distance from (a, b) to the points of the cells at Chebyshev distance ``ring``
-    from cell (qa, qb), or ``best`` if that is less."""
+def _ring_scan(points, order, start, n0, n1, qa, qb, ring, a, b,  # pragma: no cover - compiled
+               choosing, best, bound, rank, chosen):
+    """The points of the cells at Chebyshev distance ``ring`` from cell (qa, qb), seen from (a, b):
+    the least distance, or ``best`` if that is less; with ``choosing``, of the points within
+    ``bound``, the one of lowest rank (or ``chosen`` if that ranks lower). Returns (best, chosen)."""
     for i in range(max(qa - ring, 0), min(qa + ring, n0 - 1) + 1):
         step = 1 if i == qa - ring or i == qa + ring else 2 * ring  # a whole row, or its two ends
         for j in range(qb - ring, qb + ring + 1, step):
@@ -358,28 +360,14 @@ def _ring_nearest(points, order, start, n0, n1, qa, qb, ring, a, b, best):  # pr
                 d0 = points[p, 0] - a
                 d1 = points[p, 1] - b
                 d = np.sqrt(d0 * d0 + d1 * d1)
-                if d < best:
+                if choosing:
+                    if d <= bound and (chosen < 0 or rank[p] < rank[chosen]):
+                        chosen = p
+                elif d < best:
                     best = d
-    return best
+    return best, chosen
 
 
-@numba.njit(inline="always", **_JIT)
-def _ring_lowest_rank(points, order, start, n0, n1, qa, qb, ring, a, b, bound, rank, chosen):  # pragma: no cover
-    """Of the points of the ring's cells within ``bound`` of (a, b), the one of lowest rank (or
-    ``chosen`` if that ranks lower)."""
-    for i in range(max(qa - ring, 0), min(qa + ring, n0 - 1) + 1):
-        step = 1 if i == qa - ring or i == qa + ring else 2 * ring
-        for j in range(qb - ring, qb + ring + 1, step):
-            if j < 0 or j >= n1:
-                continue
-            c = i * n1 + j
-            for s in range(start[c], start[c + 1]):
-                p = order[s]
-                d0 = points[p, 0] - a
-                d1 = points[p, 1] - b
-                if np.sqrt(d0 * d0 + d1 * d1) <= bound and (chosen < 0 or rank[p] < rank[chosen]):
-                    chosen = p
-    return chosen
 # --- distances to a 2D centreline (angiohull.reconstruction.centreline_fit) ----------------------
 
 @numba.njit(**_JIT)
