@@ -13,7 +13,9 @@ The dense lattice is never held: memory follows the number of surviving cells an
 Everything is written for an array module ``xp`` (NumPy here, CuPy for ``--device cuda``, see
 :mod:`.gpu`) with one ufunc per arithmetic operation, in the order of
 :func:`~angiohull.reconstruction.engines.project_in_front`: IEEE-exact on both, so the CPU and GPU
-keep bit-identical point sets.
+keep bit-identical point sets. On the CPU with every view required, where numba is installed, the
+same cells, tests and arithmetic run as one compiled kernel (:mod:`angiohull.compiled`), again with
+the same points and survivor counts.
 """
 
 from __future__ import annotations
