@@ -145,6 +145,107 @@ def test_distances_to_a_centreline_equal_the_numpy_path(seed):
         np.testing.assert_array_equal(got, reference, err_msg=str(cutoff))
 
 
+def _lattice_case(seed):
+    """Axis points and queries on a lattice of spacing 0.3 mm: axis points on a coarse sub-lattice
+    (many exactly tied neighbours) or scattered, queries near, far (beyond the eight-spacing shell
+    table) and beyond reach."""
+    rng = np.random.default_rng(seed)
+    spacing, offset = 0.3, -9.15
+    if seed % 2:
+        axis_ijk = 3 * rng.integers(2, 12, (int(rng.integers(5, 80)), 3))
+    else:
+        axis_ijk = rng.integers(0, 40, (int(rng.integers(1, 300)), 3))
+    axis_ijk = np.unique(axis_ijk, axis=0)  # distinct, in lattice order
+    query_ijk = np.concatenate([rng.integers(-4, 44, (400, 3)), rng.integers(-30, 70, (40, 3)), axis_ijk[:5]])
+    return axis_ijk, offset + spacing * axis_ijk, query_ijk, offset + spacing * query_ijk
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_nearest_axis_point_equals_the_numpy_path_and_brute_force(seed):
+    """The refined preset's nearest axis point: distance as the k-d tree computes it, the lowest
+    index of equally near ones; beyond reach inf and 0. Reaches: generous, tight, and one exactly
+    at a squared distance that occurs (the k-d tree's strict bound decides those)."""
+    from angiohull.reconstruction.refine import _nearest_axis
+
+    axis_ijk, axis_mm, query_ijk, query_mm = _lattice_case(seed)
+    difference = query_mm[:, None, :] - axis_mm[None, :, :]
+    exact = (query_ijk[:, None, :] - axis_ijk[None, :, :]) ** 2
+    length = exact.sum(axis=2)
+    nearest = length.min(axis=1)
+    brute_index = np.argmax(length == nearest[:, None], axis=1)  # the lowest index of the least
+    brute_distance = np.sqrt(np.where(length == nearest[:, None], (difference ** 2).sum(axis=2), np.inf).min(axis=1))
+    for reach in (50.0, 1.0, 0.3 * np.sqrt(float(np.median(nearest)))):
+        (distance, index), (ref_distance, ref_index) = _both(
+            lambda: _nearest_axis(axis_ijk, axis_mm, query_ijk, query_mm, reach))
+        np.testing.assert_array_equal(distance, ref_distance)
+        np.testing.assert_array_equal(index, ref_index)
+        within = brute_distance < reach * (1 - 1e-9)
+        np.testing.assert_array_equal(index[within], brute_index[within])
+        np.testing.assert_allclose(distance[within], brute_distance[within], rtol=0, atol=1e-12)
+        beyond = brute_distance > reach * (1 + 1e-9)
+        assert np.all(np.isinf(distance[beyond])) and np.all(index[beyond] == 0)
+
+
+def _rivals_brute_force(axis_uv, reach_px, axis_points, axis_piece, tube_uv, tube_points, tube_piece, hull):
+    """The rivals by their definition, pair by pair: a tube point of another piece within the axis
+    point's reach whose segment to it, sampled every half spacing (rounded halves to even), meets a
+    lattice point outside the hull."""
+    found = set()
+    for a in range(len(axis_uv)):
+        for t in range(len(tube_uv)):
+            if tube_piece[t] == axis_piece[a] or (a, tube_piece[t]) in found:
+                continue
+            du, dv = axis_uv[a] - tube_uv[t]
+            if not np.sqrt(du * du + dv * dv) <= reach_px[a]:
+                continue
+            step = (tube_points[t] - axis_points[a]).astype(float)
+            n = max(int(np.ceil(2.0 * np.sqrt((step * step).sum()))), 1)
+            samples = axis_points[a] + np.rint(step[None, :] * (np.arange(1, n) / n)[:, None]).astype(np.int64)
+            if not hull[tuple(samples.T)].all():
+                found.add((a, int(tube_piece[t])))
+    return sorted(found)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_rivals_equal_the_numpy_path_and_their_definition(seed):
+    """Random hulls (blobs with holes), pieces and projections: each (axis point, piece) pair once,
+    ordered, as the NumPy code and a pair-by-pair reading of the definition give them."""
+    from scipy import ndimage as ndi
+
+    from angiohull.reconstruction.refine import _rivals
+
+    rng = np.random.default_rng(seed)
+    hull = ndi.binary_dilation(rng.random((18, 20, 22)) < 0.02, iterations=2)
+    hull[rng.random(hull.shape) < 0.05] = False  # holes: gaps inside the blobs
+    points = np.argwhere(hull)
+    pick = rng.permutation(len(points))
+    axis_points = points[np.sort(pick[:60])]
+    tube_points = points[np.sort(pick[:400])]
+    n_pieces = 2 + seed % 4
+    axis_piece = rng.integers(0, n_pieces, len(axis_points))
+    tube_piece = rng.integers(0, n_pieces, len(tube_points))
+    view = np.array([[1.0, 0.3, 0.1], [0.2, 0.1, 1.0]])  # a parallel view: points on one ray share (u, v)
+    axis_uv, tube_uv = axis_points @ view.T, tube_points @ view.T + rng.normal(0, 0.3, (len(tube_points), 2))
+    reach = rng.uniform(0.5, 2.5, len(axis_points))
+    args = (axis_uv, reach, axis_points, axis_piece, tube_uv, tube_points, tube_piece, hull)
+    (got_axis, got_piece), (ref_axis, ref_piece) = _both(lambda: _rivals(*args))
+    np.testing.assert_array_equal(got_axis, ref_axis)
+    np.testing.assert_array_equal(got_piece, ref_piece)
+    assert list(zip(got_axis.tolist(), got_piece.tolist())) == _rivals_brute_force(*args)
+    assert len(got_axis) > 0
+
+
+@pytest.mark.parametrize("views", ["clinical", "perpendicular"])
+def test_refined_points_equal_the_numpy_path(views):
+    from angiohull.synthetic import SynthOptions, make_case
+
+    case = make_case(SynthOptions(seed=4, views=views))
+    projections, masks = [v.projection for v in case.views], [v.mask for v in case.views]
+    got, reference = _both(lambda: reconstruct(projections, masks, preset="refined", tree=False,
+                                               centerlines=False).vessel_points_mm)
+    np.testing.assert_array_equal(got, reference)
+
+
 def test_the_environment_switch_and_status():
     code = "from angiohull import compiled; print(compiled.kernels() is None); print(compiled.status())"
     env = dict(os.environ, ANGIOHULL_COMPILED="0")

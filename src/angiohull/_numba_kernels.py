@@ -408,3 +408,307 @@ def centreline_distances(u, v, cutoff, floor_limit, use_floor, floor, candidate_
             least = min(least, du * du + dv * dv)
         distance[i] = min(np.sqrt(least), cutoff)
     return distance, ask
+
+
+# --- the refined preset (angiohull.reconstruction.refine) -----------------------------------------
+
+@numba.njit(**_JIT)
+def nearest_lattice_axis(axis_ijk, axis_mm, query_ijk, query_mm, spacing_cells, largest_length,
+                         reach_squared):  # pragma: no cover - compiled
+    """:func:`angiohull.reconstruction.refine._nearest_axis` where the nearest axis point lies
+    within ``largest_length`` (a squared lattice distance, the NumPy code's shell table): the
+    axis points at the least squared lattice distance (whole numbers, compared exactly) are the
+    equally near ones; the index is the lowest of them, the distance the least of
+    ``sqrt(d0 * d0 + d1 * d1 + d2 * d2)`` (mm, summed in that order, as
+    :class:`scipy.spatial.cKDTree` computes it) over them. The axis points are binned on cubes of
+    ``spacing_cells`` lattice spacings; a query reads the cubes around its own, ring by ring, until
+    no unread cube can hold a point as near as the nearest found. Returns (distance, index,
+    settled): ``settled`` is False where this cannot tell (the nearest beyond ``largest_length``,
+    or a squared distance within a part in 1e9 of ``reach_squared``, the k-d tree's strict
+    bound): the caller asks the NumPy code there. Queries settled with no axis point within reach
+    get distance inf and index 0."""
+    c = spacing_cells
+    n_axis = axis_ijk.shape[0]
+    n_query = query_ijk.shape[0]
+    distance = np.full(n_query, np.inf)
+    index = np.zeros(n_query, np.int64)
+    settled = np.zeros(n_query, np.bool_)
+    if n_axis == 0:
+        return distance, index, settled
+    low0 = min(axis_ijk[:, 0].min(), query_ijk[:, 0].min())
+    low1 = min(axis_ijk[:, 1].min(), query_ijk[:, 1].min())
+    low2 = min(axis_ijk[:, 2].min(), query_ijk[:, 2].min())
+    n0 = (max(axis_ijk[:, 0].max(), query_ijk[:, 0].max()) - low0) // c + 1
+    n1 = (max(axis_ijk[:, 1].max(), query_ijk[:, 1].max()) - low1) // c + 1
+    n2 = (max(axis_ijk[:, 2].max(), query_ijk[:, 2].max()) - low2) // c + 1
+    start = np.zeros(n0 * n1 * n2 + 1, np.int64)
+    cell_of = np.empty(n_axis, np.int64)
+    for a in range(n_axis):
+        k = ((axis_ijk[a, 0] - low0) // c * n1 + (axis_ijk[a, 1] - low1) // c) * n2 + (axis_ijk[a, 2] - low2) // c
+        cell_of[a] = k
+        start[k + 1] += 1
+    for k in range(n0 * n1 * n2):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    member = np.empty(n_axis, np.int64)  # axis indices by cube, increasing within each
+    for a in range(n_axis):
+        member[fill[cell_of[a]]] = a
+        fill[cell_of[a]] += 1
+    for q in range(n_query):
+        x = query_ijk[q, 0]
+        y = query_ijk[q, 1]
+        z = query_ijk[q, 2]
+        i = (x - low0) // c
+        j = (y - low1) // c
+        k = (z - low2) // c
+        best = np.int64(-1)
+        lowest = np.int64(-1)
+        least = np.inf
+        ring = 0
+        while True:
+            for ii in range(max(i - ring, 0), min(i + ring, n0 - 1) + 1):
+                for jj in range(max(j - ring, 0), min(j + ring, n1 - 1) + 1):
+                    edge = ii == i - ring or ii == i + ring or jj == j - ring or jj == j + ring
+                    kk = max(k - ring, 0)
+                    while kk <= min(k + ring, n2 - 1):
+                        cube = (ii * n1 + jj) * n2 + kk
+                        for s in range(start[cube], start[cube + 1]):
+                            a = member[s]
+                            dx = x - axis_ijk[a, 0]
+                            dy = y - axis_ijk[a, 1]
+                            dz = z - axis_ijk[a, 2]
+                            n = dx * dx + dy * dy + dz * dz
+                            if best < 0 or n <= best:
+                                d0 = query_mm[q, 0] - axis_mm[a, 0]
+                                d1 = query_mm[q, 1] - axis_mm[a, 1]
+                                d2 = query_mm[q, 2] - axis_mm[a, 2]
+                                squared = 0.0
+                                squared += d0 * d0
+                                squared += d1 * d1
+                                squared += d2 * d2
+                                if best < 0 or n < best:
+                                    best = n
+                                    least = squared
+                                    lowest = a
+                                else:
+                                    least = min(least, squared)
+                                    lowest = min(lowest, a)
+                        if edge or kk == k + ring:
+                            kk += 1
+                        else:  # inside the ring's cube of cubes: only its two ends along the last axis
+                            kk = k + ring
+            # every unread point is at least `margin` lattice spacings away along some axis
+            margin = min(min(x - (low0 + (i - ring) * c) + 1, low0 + (i + ring + 1) * c - x),
+                         min(min(y - (low1 + (j - ring) * c) + 1, low1 + (j + ring + 1) * c - y),
+                             min(z - (low2 + (k - ring) * c) + 1, low2 + (k + ring + 1) * c - z)))
+            if best >= 0 and best < margin * margin:
+                break
+            if best > largest_length and margin * margin > largest_length:
+                best = -2  # the nearest is beyond the table
+                break
+            if best < 0 and margin * margin > largest_length:
+                best = -2
+                break
+            ring += 1
+        if best < 0:
+            continue
+        if abs(least - reach_squared) > 1e-9 * reach_squared:
+            settled[q] = True
+            if least < reach_squared:
+                distance[q] = np.sqrt(least)
+                index[q] = lowest
+    return distance, index, settled
+
+
+_STEP_REACH = 24  # steps of at most this many lattice spacings on every axis have their samples listed once
+
+
+@numba.njit(**_JIT)
+def _step_samples(dx, dy, dz, s0, s1):  # pragma: no cover - compiled
+    """The lattice points the segment from a lattice point by the step (dx, dy, dz) passes, as
+    :func:`angiohull.reconstruction.refine._gaps` samples it (every half spacing, each sample
+    rounded to its nearest lattice point, halves to even): flat offsets (strides s0, s1, 1) from the
+    start, without repeats of the previous sample and without the two ends."""
+    fx = np.float64(dx)
+    fy = np.float64(dy)
+    fz = np.float64(dz)
+    steps = max(np.int64(np.ceil(2.0 * np.sqrt(fx * fx + fy * fy + fz * fz))), 1)
+    end = dx * s0 + dy * s1 + dz
+    out = np.empty(max(steps - 1, 0), np.int64)
+    n = 0
+    previous = np.int64(0)
+    for k in range(1, steps):
+        fraction = k / steps
+        f = np.int64(np.rint(fx * fraction)) * s0 + np.int64(np.rint(fy * fraction)) * s1 \
+            + np.int64(np.rint(fz * fraction))
+        if f != previous and f != 0 and f != end:
+            out[n] = f
+            n += 1
+        previous = f
+    return out[:n]
+
+
+@numba.njit(inline="always", **_JIT)
+def _first_at_least(values, low, high, x):  # pragma: no cover - compiled
+    """The first index in low..high of the sorted ``values`` whose value is at least ``x`` (high if
+    none)."""
+    while low < high:
+        middle = (low + high) >> 1
+        if values[middle] < x:
+            low = middle + 1
+        else:
+            high = middle
+    return low
+
+
+@numba.njit(**_JIT)
+def rival_pairs(axis_uv, reach_px, axis_piece, tube_uv, tube_piece, axis_local, tube_local, hull,
+                shape):  # pragma: no cover - compiled
+    """:func:`angiohull.reconstruction.refine._rivals`: the pairs (axis point, piece) such that a tube
+    point of that other piece projects within the axis point's reach (``du * du + dv * dv`` within
+    the largest reach squared and its square root within the point's reach, as the NumPy code
+    compares) and the segment between their lattice points (``*_local``, indices into the flat
+    C-order volume ``hull`` of ``shape``) leaves the hull. Ordered by axis point, then piece; per
+    pair the tube points are tried farthest first, up to the first that is across a gap."""
+    n_tube = tube_uv.shape[0]
+    if n_tube == 0 or axis_uv.shape[0] == 0:
+        return np.empty(0, np.int64), np.empty(0, np.int64)
+    largest = reach_px.max()
+    limit = largest * largest
+    # the tube points in rows of height half the largest reach, sorted by u within each row: an axis
+    # point reads, in each row within reach, the stretch of u within reach (a hair wider, so that
+    # rounding cannot leave out a point that the exact test below keeps)
+    wide = largest * (1.0 + 1e-6)
+    height = 0.5 * wide
+    low_v = min(axis_uv[:, 1].min(), tube_uv[:, 1].min())
+    high_v = max(axis_uv[:, 1].max(), tube_uv[:, 1].max())
+    n_rows = np.int64(np.floor((high_v - low_v) / height)) + 1
+    row_of = np.empty(n_tube, np.int64)
+    row_start = np.zeros(n_rows + 1, np.int64)
+    for t in range(n_tube):
+        r = min(np.int64(np.floor((tube_uv[t, 1] - low_v) / height)), n_rows - 1)
+        row_of[t] = r
+        row_start[r + 1] += 1
+    for r in range(n_rows):
+        row_start[r + 1] += row_start[r]
+    fill = row_start[:-1].copy()
+    by_row = np.empty(n_tube, np.int64)
+    for t in range(n_tube):
+        by_row[fill[row_of[t]]] = t
+        fill[row_of[t]] += 1
+    for r in range(n_rows):  # by u within the row
+        stretch = by_row[row_start[r]:row_start[r + 1]]
+        by_row[row_start[r]:row_start[r + 1]] = stretch[np.argsort(tube_uv[stretch, 0])]
+    sorted_u = tube_uv[by_row, 0].copy()
+    sorted_v = tube_uv[by_row, 1].copy()
+    sorted_piece = tube_piece[by_row].copy()
+    s0 = shape[1] * shape[2]
+    s1 = shape[2]
+    n_distance = 3 * (shape[0] * shape[0] + shape[1] * shape[1] + shape[2] * shape[2]) + 1
+    out_axis = np.empty(1024, np.int64)
+    out_piece = np.empty(1024, np.int64)
+    n_out = 0
+    candidate = np.empty(64, np.int64)
+    order_key = np.empty(64, np.int64)
+    span = 2 * _STEP_REACH + 1
+    slot = np.full(span * span * span, -1, np.int32)  # a step's row of slot_start, or -1
+    slot_start = np.empty(1025, np.int64)
+    slot_start[0] = 0
+    n_slots = 0
+    table = np.empty(4096, np.int64)
+    n_table = 0
+    for a in range(axis_uv.shape[0]):
+        u = axis_uv[a, 0]
+        v = axis_uv[a, 1]
+        own = axis_piece[a]
+        ax = axis_local[a, 0]
+        ay = axis_local[a, 1]
+        az = axis_local[a, 2]
+        m = 0
+        first_row = max(np.int64(np.floor((v - wide - low_v) / height)), 0)
+        last_row = min(np.int64(np.floor((v + wide - low_v) / height)), n_rows - 1)
+        for r in range(first_row, last_row + 1):
+            gap = max(low_v + r * height - v, v - (low_v + (r + 1) * height), 0.0)
+            half = np.sqrt(max(wide * wide - gap * gap, 0.0)) * (1.0 + 1e-6) + 1e-9 * wide
+            first = _first_at_least(sorted_u, row_start[r], row_start[r + 1], u - half)
+            last = _first_at_least(sorted_u, first, row_start[r + 1], u + half)
+            for s in range(first, last):
+                if sorted_piece[s] == own:
+                    continue
+                du = u - sorted_u[s]
+                dv = v - sorted_v[s]
+                squared = du * du
+                squared += dv * dv
+                if not (squared <= limit and np.sqrt(squared) <= reach_px[a]):
+                    continue
+                if m == candidate.size:
+                    candidate = np.concatenate((candidate, np.empty(m, np.int64)))
+                    order_key = np.concatenate((order_key, np.empty(m, np.int64)))
+                t = by_row[s]
+                dx = tube_local[t, 0] - ax
+                dy = tube_local[t, 1] - ay
+                dz = tube_local[t, 2] - az
+                candidate[m] = t
+                order_key[m] = sorted_piece[s] * n_distance + (n_distance - 1 - (dx * dx + dy * dy + dz * dz))
+                m += 1
+        if m == 0:
+            continue
+        if m <= 48:  # few: sorted in place (no allocation)
+            for i in range(1, m):
+                key = order_key[i]
+                t = candidate[i]
+                j = i - 1
+                while j >= 0 and order_key[j] > key:
+                    order_key[j + 1] = order_key[j]
+                    candidate[j + 1] = candidate[j]
+                    j -= 1
+                order_key[j + 1] = key
+                candidate[j + 1] = t
+        else:
+            order = np.argsort(order_key[:m])
+            candidate[:m] = candidate[:m][order]
+        start = ax * s0 + ay * s1 + az
+        done_piece = -1
+        for i in range(m):
+            t = candidate[i]
+            piece = tube_piece[t]
+            if piece == done_piece:
+                continue
+            dx = tube_local[t, 0] - ax
+            dy = tube_local[t, 1] - ay
+            dz = tube_local[t, 2] - az
+            # the step's samples, listed once per step (the segments between rivals run along
+            # viewing rays: few distinct steps) where the step is short enough for the index
+            if abs(dx) <= _STEP_REACH and abs(dy) <= _STEP_REACH and abs(dz) <= _STEP_REACH:
+                code = ((dx + _STEP_REACH) * span + dy + _STEP_REACH) * span + dz + _STEP_REACH
+                if slot[code] < 0:
+                    samples = _step_samples(dx, dy, dz, s0, s1)
+                    if n_table + samples.size > table.size:
+                        table = np.concatenate((table, np.empty(max(table.size, samples.size), np.int64)))
+                    table[n_table:n_table + samples.size] = samples
+                    slot[code] = n_slots
+                    slot_start[n_slots] = n_table
+                    n_table += samples.size
+                    slot_start[n_slots + 1] = n_table
+                    n_slots += 1
+                    if n_slots + 1 == slot_start.size:
+                        slot_start = np.concatenate((slot_start, np.empty(slot_start.size, np.int64)))
+                first = slot_start[slot[code]]
+                last = slot_start[slot[code] + 1]
+                samples = table[first:last]
+            else:
+                samples = _step_samples(dx, dy, dz, s0, s1)
+            leaves = False
+            for k in range(samples.size):
+                if not hull[start + samples[k]]:
+                    leaves = True
+                    break
+            if leaves:
+                done_piece = piece
+                if n_out == out_axis.size:
+                    out_axis = np.concatenate((out_axis, np.empty(n_out, np.int64)))
+                    out_piece = np.concatenate((out_piece, np.empty(n_out, np.int64)))
+                out_axis[n_out] = a
+                out_piece[n_out] = piece
+                n_out += 1
+    return out_axis[:n_out].copy(), out_piece[:n_out].copy()

@@ -1,9 +1,10 @@
 """Optional compiled kernels for the hot loops (``pip install "angiohull[fast]"``: numba).
 
-The carving, the Guo–Hall thinning, the centerline step's nearest-neighbour search and the
-calibration's distances to a 2D centreline each have a NumPy implementation, which is the
-reference, and a compiled one (:mod:`angiohull._numba_kernels`) that computes the same thing with
-the same arithmetic: the same points, skeletons and neighbours bit for bit (the tests compare them).
+The carving, the Guo–Hall thinning, the centerline step's nearest-neighbour search, the
+calibration's distances to a 2D centreline and the refined preset's nearest axis points and rivals
+each have a NumPy implementation, which is the reference, and a compiled one
+(:mod:`angiohull._numba_kernels`) that computes the same thing with the same arithmetic: the same
+points, skeletons and neighbours bit for bit (the tests compare them).
 
 The library uses the compiled kernels when numba can be imported; the environment variable
 ``ANGIOHULL_COMPILED=0`` (or :func:`set_enabled`, :func:`disabled`) runs the NumPy code instead.

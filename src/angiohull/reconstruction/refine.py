@@ -73,6 +73,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .. import options
+from ..compiled import kernels
 from ..geometry import Projection, canonical_storage
 from ..thinning import guo_hall_thin as thin
 from ..tree.voxels import dilated
@@ -314,6 +315,16 @@ def _rivals(axis_uv: np.ndarray, reach_px: np.ndarray, axis_points: np.ndarray, 
     hull point is tried first, the lowest index of equally far ones: it is the one most likely
     across a gap; the others only when it is not.) ``axis_points`` and ``tube_points`` are (n, 3)
     integer lattice indices into the volume ``hull``."""
+    compiled = kernels()
+    if compiled is not None:
+        return compiled.rival_pairs(np.ascontiguousarray(axis_uv, dtype=np.float64),
+                                    np.ascontiguousarray(reach_px, dtype=np.float64),
+                                    np.ascontiguousarray(axis_piece, dtype=np.int64),
+                                    np.ascontiguousarray(tube_uv, dtype=np.float64),
+                                    np.ascontiguousarray(tube_piece, dtype=np.int64),
+                                    np.ascontiguousarray(axis_points, dtype=np.int64),
+                                    np.ascontiguousarray(tube_points, dtype=np.int64),
+                                    np.ascontiguousarray(hull).ravel(), np.array(hull.shape, dtype=np.int64))
     axis_index, tube_index = _pairs_within(axis_uv, reach_px, axis_piece, tube_uv, tube_piece)
     rival_piece = tube_piece[tube_index]
     if len(axis_index) == 0:
@@ -583,6 +594,10 @@ def _lattice_shells(cells: int) -> dict[int, np.ndarray]:
 
 
 _SHELLS = _lattice_shells(8)
+# the same table for the compiled tie step: the offsets of squared length n are rows
+# _SHELL_BOUNDS[n]:_SHELL_BOUNDS[n + 1] of _SHELL_OFFSETS
+_SHELL_OFFSETS = np.concatenate([_SHELLS[n] for n in sorted(_SHELLS)]).astype(np.int64)
+_SHELL_BOUNDS = np.searchsorted((_SHELL_OFFSETS * _SHELL_OFFSETS).sum(axis=1), np.arange(max(_SHELLS) + 2))
 
 
 def _nearest_axis(axis_ijk: np.ndarray, axis_mm: np.ndarray, query_ijk: np.ndarray, query_mm: np.ndarray,
@@ -599,6 +614,15 @@ def _nearest_axis(axis_ijk: np.ndarray, axis_mm: np.ndarray, query_ijk: np.ndarr
     the tree computes, whichever of the equally near points it found), and the equally near ones
     are the axis points on the shell of lattice offsets of the same squared length around the
     query, read from a volume (up to 8 spacings away; :func:`nearest_with_ties` beyond)."""
+    compiled = kernels()
+    if compiled is not None:
+        return _nearest_axis_compiled(compiled, axis_ijk, axis_mm, query_ijk, query_mm, reach_mm)
+    return _nearest_axis_numpy(axis_ijk, axis_mm, query_ijk, query_mm, reach_mm)
+
+
+def _nearest_axis_numpy(axis_ijk: np.ndarray, axis_mm: np.ndarray, query_ijk: np.ndarray, query_mm: np.ndarray,
+                        reach_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_nearest_axis` in NumPy (the reference): a k-d tree, then the shells of the ties."""
     distance, index = cKDTree(axis_mm).query(query_mm, k=1, distance_upper_bound=reach_mm)
     found = np.flatnonzero(index < len(axis_mm))
     index[index >= len(axis_mm)] = 0
@@ -630,6 +654,23 @@ def _nearest_axis(axis_ijk: np.ndarray, axis_mm: np.ndarray, query_ijk: np.ndarr
     far = found[length > cells * cells]
     if len(far):
         distance[far], index[far] = nearest_with_ties(axis_mm, query_mm[far], _TIE_MM)
+    return distance, index
+
+
+_AXIS_CUBE_CELLS = 4  # the compiled search bins the axis points on cubes of this many lattice spacings
+
+
+def _nearest_axis_compiled(compiled, axis_ijk: np.ndarray, axis_mm: np.ndarray, query_ijk: np.ndarray,
+                           query_mm: np.ndarray, reach_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_nearest_axis` with the compiled shell search; the queries it cannot settle (no axis
+    point on the shell table, or at the reach to rounding) go the NumPy way."""
+    distance, index, settled = compiled.nearest_lattice_axis(
+        np.ascontiguousarray(axis_ijk, dtype=np.int64), np.ascontiguousarray(axis_mm, dtype=np.float64),
+        np.ascontiguousarray(query_ijk, dtype=np.int64), np.ascontiguousarray(query_mm, dtype=np.float64),
+        _AXIS_CUBE_CELLS, max(_SHELLS), float(reach_mm) * float(reach_mm))
+    rest = np.flatnonzero(~settled)
+    if len(rest):
+        distance[rest], index[rest] = _nearest_axis_numpy(axis_ijk, axis_mm, query_ijk[rest], query_mm[rest], reach_mm)
     return distance, index
 
 
