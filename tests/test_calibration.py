@@ -31,14 +31,21 @@ def test_jacobian_is_the_derivative_at_the_isocentre():
     assert np.allclose(_jacobian(projection), numeric, atol=1e-4)
 
 
+@pytest.mark.parametrize("extent", ["whole", "box", "empty"])
 @pytest.mark.parametrize("window", [1, 6, 40])
-def test_support_map_counts_the_points_on_the_mask_for_every_shift(window):
+def test_support_map_counts_the_points_on_the_mask_for_every_shift(window, extent):
     # Slow reference: for each integer shift, the fraction of points whose nearest pixel, moved by
-    # the shift, is a mask pixel (points near and beyond the image border included).
+    # the shift, is a mask pixel (points near and beyond the image border included). The mask
+    # covers the image, a box within it (the map is computed on that box padded by the window), or
+    # nothing.
     projection = CArmGeometry(20.0, -15.0, 1100.0, 750.0, (0.3, 0.3), (96, 128)).projection()
     rng = np.random.default_rng(3)
     points = rng.uniform(-16.0, 16.0, (400, 3))
     mask = rng.random((96, 128)) < 0.3
+    if extent == "box":
+        mask[:40], mask[61:], mask[:, :50], mask[:, 91:] = False, False, False, False
+    elif extent == "empty":
+        mask[:] = False
     support = _support_map(points, projection, mask, window)
     pixel = np.floor(projection.project(points) + 0.5).astype(int)
     expected = np.zeros((2 * window + 1, 2 * window + 1))
@@ -48,6 +55,19 @@ def test_support_map_counts_the_points_on_the_mask_for_every_shift(window):
             inside = (u >= 0) & (u < 128) & (v >= 0) & (v < 96)
             expected[dv + window, du + window] = np.count_nonzero(mask[v[inside], u[inside]]) / len(points)
     np.testing.assert_allclose(support, expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("radius", [0.5, 1.0, 2.5, 4.2])
+def test_dilation_by_a_disc_equals_scipy(radius, kernel_backend):
+    from scipy import ndimage as ndi
+
+    from angiohull.reconstruction.calibration import _dilated, _disc
+
+    rng = np.random.default_rng(int(10 * radius))
+    image = rng.random((40, 57)) < 0.03
+    image[0, 5] = image[39, 56] = True  # on the border: nothing beyond it
+    footprint = _disc(radius)
+    np.testing.assert_array_equal(_dilated(image, footprint), ndi.binary_dilation(image, structure=footprint))
 
 
 def test_gauge_removes_a_common_translation_and_keeps_a_single_view_shift():

@@ -712,3 +712,23 @@ def rival_pairs(axis_uv, reach_px, axis_piece, tube_uv, tube_piece, axis_local, 
                 out_piece[n_out] = piece
                 n_out += 1
     return out_axis[:n_out].copy(), out_piece[:n_out].copy()
+
+
+# --- calibration (angiohull.reconstruction.calibration) -------------------------------------------
+
+@numba.njit(**_JIT)
+def dilate_by_offsets(image, offsets):  # pragma: no cover - compiled
+    """``image`` (bool, 2D) dilated by the footprint whose (dy, dx) offsets from its centre are the
+    rows of ``offsets``, nothing beyond the border: each set pixel sets the pixels at its offsets,
+    as :func:`angiohull.reconstruction.calibration._dilated`'s shifted ORs do."""
+    rows, cols = image.shape
+    out = image.copy()
+    for r in range(rows):
+        for c in range(cols):
+            if image[r, c]:
+                for k in range(offsets.shape[0]):
+                    rr = r + offsets[k, 0]
+                    cc = c + offsets[k, 1]
+                    if rr >= 0 and rr < rows and cc >= 0 and cc < cols:
+                        out[rr, cc] = True
+    return out

@@ -128,6 +128,7 @@ import numpy as np
 from scipy import ndimage as ndi
 from scipy.fft import irfft2, next_fast_len, rfft2
 
+from ..compiled import kernels
 from ..errors import ReconstructionError
 from ..geometry import Projection, cube_half_edge_mm
 from .cube import Lattice
@@ -279,27 +280,46 @@ def _support_map(points: np.ndarray, projection: Projection, mask_near: np.ndarr
     Returns an array ``(2 window + 1, 2 window + 1)`` indexed ``[dv + window, du + window]``.
     ``spectra`` remembers the padded mask's transform by window (it does not change between calls).
     """
-    rows, cols = mask_near.shape
+    spectra = {} if spectra is None else spectra
+    if window not in spectra:
+        spectra[window] = _MaskSpectrum(mask_near, window)
+    spectrum = spectra[window]
     h = projection.homogeneous(points)
     front = h[:, 2] > 0
     uv = h[front, :2] / h[front, 2:3]
-    iu = np.floor(uv[:, 0] + 0.5).astype(np.int64) + window
-    iv = np.floor(uv[:, 1] + 0.5).astype(np.int64) + window
+    # canvas coordinates: the box of the mask padded by the window (a point outside it lands on
+    # the mask for no shift within the window)
+    iu = np.floor(uv[:, 0] + 0.5).astype(np.int64) - spectrum.col0 + window
+    iv = np.floor(uv[:, 1] + 0.5).astype(np.int64) - spectrum.row0 + window
+    rows, cols = spectrum.box
     ok = (iu >= 0) & (iu < cols + 2 * window) & (iv >= 0) & (iv < rows + 2 * window)
-    # C(s) = sum_x D(x) M(x + s) on a canvas padded by the window: as a circular correlation it wraps
-    # only into the padding, where the mask is empty, for |s| <= window.
-    shape = (next_fast_len(rows + 2 * window, real=True), next_fast_len(cols + 2 * window, real=True))
-    density = np.zeros(shape)
-    np.add.at(density, (iv[ok], iu[ok]), 1.0)
-    spectra = {} if spectra is None else spectra
-    if window not in spectra:
-        canvas = np.zeros(shape)
-        canvas[window:window + rows, window:window + cols] = mask_near
-        spectra[window] = rfft2(canvas)
-    correlation = irfft2(np.conj(rfft2(density)) * spectra[window], s=shape)
+    # C(s) = sum_x D(x) M(x + s) on the padded canvas: as a circular correlation it wraps only into
+    # the padding, where the mask is empty, for |s| <= window.
+    shape = spectrum.shape
+    density = np.bincount(iv[ok] * shape[1] + iu[ok], minlength=shape[0] * shape[1]).astype(np.float64)
+    correlation = irfft2(np.conj(rfft2(density.reshape(shape))) * spectrum.transform, s=shape)
     offsets = np.arange(-window, window + 1)
     block = correlation[np.ix_(offsets % shape[0], offsets % shape[1])]
     return np.clip(np.round(block), 0, None) / max(1, len(points))
+
+
+class _MaskSpectrum:
+    """The transform of a view's near-mask on the canvas of :func:`_support_map`: the box of its
+    pixels (the whole image when it has none) padded by the window on every side."""
+
+    def __init__(self, mask_near: np.ndarray, window: int):
+        hit_rows, hit_cols = np.flatnonzero(mask_near.any(axis=1)), np.flatnonzero(mask_near.any(axis=0))
+        if len(hit_rows):
+            self.row0, self.col0 = int(hit_rows[0]), int(hit_cols[0])
+            self.box = (int(hit_rows[-1]) + 1 - self.row0, int(hit_cols[-1]) + 1 - self.col0)
+        else:
+            self.row0, self.col0, self.box = 0, 0, mask_near.shape
+        rows, cols = self.box
+        self.shape = (next_fast_len(rows + 2 * window, real=True), next_fast_len(cols + 2 * window, real=True))
+        canvas = np.zeros(self.shape)
+        canvas[window:window + rows, window:window + cols] = mask_near[self.row0:self.row0 + rows,
+                                                                       self.col0:self.col0 + cols]
+        self.transform = rfft2(canvas)
 
 
 def _disc(radius: float, *, strict: bool = False) -> np.ndarray:
@@ -317,7 +337,12 @@ _MAX_DISC = 64  # a larger disc is quicker as a distance transform (the coarsest
 
 def _dilated(image: np.ndarray, footprint: np.ndarray) -> np.ndarray:
     """``image`` (bool) dilated by a small symmetric ``footprint`` (nothing beyond the border): one
-    shifted OR per offset, much quicker than a general dilation for a footprint of a few dozen."""
+    shifted OR per offset, much quicker than a general dilation for a footprint of a few dozen (the
+    compiled kernel sets each set pixel's offsets instead: the same pixels)."""
+    compiled = kernels()
+    if compiled is not None:
+        offsets = np.argwhere(footprint) - footprint.shape[0] // 2
+        return compiled.dilate_by_offsets(np.ascontiguousarray(image, dtype=bool), offsets.astype(np.int64))
     out = image.copy()
     rows, cols = image.shape
     r = footprint.shape[0] // 2
