@@ -246,6 +246,34 @@ def test_refined_points_equal_the_numpy_path(views):
     np.testing.assert_array_equal(got, reference)
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_lattice_points_in_tubes_equal_the_numpy_path_and_the_balls(seed):
+    """Random tubes, some reaching past the lattice's faces, with and without a margin: the same
+    points as the NumPy code, and exactly the lattice points within a ball's radius (plus the
+    margin) of one of the balls the tubes are covered by, point by point (the NumPy code raised
+    where a run passed the lattice's last point)."""
+    from angiohull.reconstruction.model.tubes import _densified, lattice_points_in_tubes
+
+    rng = np.random.default_rng(seed)
+    lattice = Lattice(12.0, 37 + 4 * seed)
+    n = int(rng.integers(1, 9))
+    starts, ends = rng.uniform(-14, 14, (n, 3)), rng.uniform(-14, 14, (n, 3))
+    r0, r1 = rng.uniform(0.2, 3.0, n), rng.uniform(0.2, 3.0, n)
+    for margin in (0.0, 0.35):
+        got, reference = _both(lambda: lattice_points_in_tubes(starts, ends, r0, r1, lattice, margin_mm=margin))
+        np.testing.assert_array_equal(got, reference)
+        centres, radii = _densified(starts, ends, r0, r1, 0.5 * lattice.spacing_mm)
+        points = lattice.points()
+        square = (radii + margin) ** 2
+        inside = np.zeros(len(points), dtype=bool)
+        for c, q in zip(centres, square):  # the test of the code: the squared distance across the column first
+            d = points - c
+            rest = q - d[:, 0] * d[:, 0] - d[:, 1] * d[:, 1]
+            inside |= (rest >= 0) & (d[:, 2] * d[:, 2] <= rest)
+        expected = {tuple(p) for p in points[inside]}
+        assert {tuple(p) for p in got} == expected
+
+
 def test_the_environment_switch_and_status():
     code = "from angiohull import compiled; print(compiled.kernels() is None); print(compiled.status())"
     env = dict(os.environ, ANGIOHULL_COMPILED="0")

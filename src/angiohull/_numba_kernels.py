@@ -732,3 +732,48 @@ def dilate_by_offsets(image, offsets):  # pragma: no cover - compiled
                     if rr >= 0 and rr < rows and cc >= 0 and cc < cols:
                         out[rr, cc] = True
     return out
+
+
+# --- the tree method (angiohull.reconstruction.model.tubes) ---------------------------------------
+
+@numba.njit(**_JIT)
+def balls_on_lattice(centres, radii, margin, axis, half, h, lo, shape):  # pragma: no cover - compiled
+    """The lattice points (of coordinates ``axis`` on every axis, spacing ``h``, half edge ``half``)
+    within ``radii + margin`` of any ball centre, as a bool volume of ``shape`` from lattice index
+    ``lo``: per ball and lattice column (i, j) near it, the run of z indices that
+    :func:`angiohull.reconstruction.model.tubes.lattice_points_in_tubes` finds (the same estimate
+    from the square root, moved twice by the same exact tests)."""
+    k = axis.size
+    volume = np.zeros((shape[0], shape[1], shape[2]), np.bool_)
+    for b in range(centres.shape[0]):
+        cx = centres[b, 0]
+        cy = centres[b, 1]
+        z = centres[b, 2]
+        grow = radii[b] + margin
+        cells = np.int64(np.ceil(grow / h)) + 1
+        base_i = np.int64(np.floor((cx + half) / h))
+        base_j = np.int64(np.floor((cy + half) / h))
+        square = grow ** 2
+        # (the box ``lo``, ``shape`` holds every ball's reach; the ranges stay within it regardless)
+        for i in range(max(base_i - cells, 0, lo[0]), min(base_i + cells + 1, k - 1, lo[0] + shape[0] - 1) + 1):
+            dx = axis[i] - cx
+            for j in range(max(base_j - cells, 0, lo[1]), min(base_j + cells + 1, k - 1, lo[1] + shape[1] - 1) + 1):
+                dy = axis[j] - cy
+                rem = square - dx * dx - dy * dy
+                if not rem >= 0:
+                    continue
+                span = np.sqrt(rem)
+                k_lo = min(max(np.int64(np.ceil((z - span + half) / h - 1e-9)), 0), k - 1)
+                k_hi = min(max(np.int64(np.floor((z + span + half) / h + 1e-9)), 0), k - 1)
+                for _ in range(2):
+                    if k_lo > 0 and (axis[k_lo - 1] - z) ** 2 <= rem:
+                        k_lo -= 1
+                    if (axis[min(k_lo, k - 1)] - z) ** 2 > rem:
+                        k_lo += 1
+                    if k_hi < k - 1 and (axis[k_hi + 1] - z) ** 2 <= rem:
+                        k_hi += 1
+                    if (axis[max(k_hi, 0)] - z) ** 2 > rem:
+                        k_hi -= 1
+                for kk in range(max(k_lo, lo[2]), min(k_hi, lo[2] + shape[2] - 1) + 1):
+                    volume[i - lo[0], j - lo[1], kk - lo[2]] = True
+    return volume

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...compiled import kernels
+from ...tree.voxels import coordinates
 from ..cube import Lattice
 
 __all__ = ["lattice_points_in_tubes"]
@@ -50,6 +52,12 @@ def lattice_points_in_tubes(starts_mm: np.ndarray, ends_mm: np.ndarray, start_ra
     lo = np.clip(np.floor(c - reach[:, None]).astype(np.int64), 0, k - 1).min(axis=0)
     hi = np.clip(np.ceil(c + reach[:, None]).astype(np.int64), 0, k - 1).max(axis=0)
     shape = hi - lo + 1
+    compiled = kernels()
+    if compiled is not None:
+        inside = compiled.balls_on_lattice(centres, radii, float(margin_mm), axis, float(half), float(h), lo,
+                                           shape.astype(np.int64))
+        ijk = coordinates(inside) + lo
+        return lattice.points_at((ijk[:, 0] * k + ijk[:, 1]) * k + ijk[:, 2])
     size = int(np.prod(shape[:2])) * int(shape[2] + 1)  # one spare z per column for the run ends
     marks = np.zeros(size, dtype=np.int64)
     base = np.floor(c[:, :2]).astype(np.int64)
@@ -79,9 +87,10 @@ def lattice_points_in_tubes(starts_mm: np.ndarray, ends_mm: np.ndarray, start_ra
             k_hi = np.clip(k_hi, 0, k - 1)
             for _ in range(2):
                 k_lo = np.where((k_lo > 0) & ((axis[np.maximum(k_lo - 1, 0)] - z) ** 2 <= rem), k_lo - 1, k_lo)
-                k_lo = np.where((axis[k_lo] - z) ** 2 > rem, k_lo + 1, k_lo)
+                # (a run beyond the lattice's last or first point moves past it: read there, and empty)
+                k_lo = np.where((axis[np.minimum(k_lo, k - 1)] - z) ** 2 > rem, k_lo + 1, k_lo)
                 k_hi = np.where((k_hi < k - 1) & ((axis[np.minimum(k_hi + 1, k - 1)] - z) ** 2 <= rem), k_hi + 1, k_hi)
-                k_hi = np.where((axis[k_hi] - z) ** 2 > rem, k_hi - 1, k_hi)
+                k_hi = np.where((axis[np.maximum(k_hi, 0)] - z) ** 2 > rem, k_hi - 1, k_hi)
             ok &= k_lo <= k_hi
             column = ((ic - lo[0]) * shape[1] + (jc - lo[1]))[ok] * (shape[2] + 1)
             marks += np.bincount(column + (k_lo[ok] - lo[2]), minlength=size)
