@@ -29,7 +29,13 @@ a well-known operation with a documented parameter (:class:`SegmentationParamete
 5. **Edge refinement.** The vesselness response is wider than the vessel and blurred at its
    edges, so the mask is the set of pixels with ``A >= edge_snr x sigma`` within
    ``edge_band_px`` of the detected structures and connected to them: the mask's edge follows the
-   vessel's own contrast.
+   vessel's own contrast. With ``edge_fraction`` > 0 a pixel must also reach that fraction of
+   ``A`` on the nearest centreline pixel of the detected structures (their Guo–Hall thinning;
+   ``A`` smoothed over a pixel there): the noise level alone puts the edge of a well-contrasted
+   vessel out in its blurred flank (16 rendered trees, 32 views: masks 0.25 px wider than the
+   silhouette all round on average, precision 0.93), a fifth of the centreline's attenuation
+   +0.04 px (precision 0.95, Dice 0.947 -> 0.953). Off by default: the real phantom's masks
+   narrow with it and every measurement made on them moves (docs/dicom.md).
 6. **Small-object removal** once more, and the field mask.
 
 Vessels are dark on a bright background (``vessels="dark"``, as X-ray intensity is recorded);
@@ -105,6 +111,9 @@ class SegmentationParameters:
         "edge refinement: pixels at least edge_snr x the noise sigma ..."))
     edge_band_px: int = field(default=2, metadata=_help(
         "... within this distance of the detected structures, px"))
+    edge_fraction: float = field(default=0.0, metadata=_help(
+        "... and at least this fraction of the attenuation on the nearest centreline pixel of the detected "
+        "structures (0: the noise level alone)"))
     min_object_px: int = field(default=100, metadata=_help(
         "connected structures with fewer pixels are removed"))
     collimator: bool = field(default=True, metadata=_help(
@@ -124,8 +133,10 @@ class SegmentationParameters:
             object.__setattr__(self, "collimator", bool(self.collimator))
         else:
             raise SegmentationError(f"collimator must be true or false, got {self.collimator!r}")
-        for name in ("smoothing_px",):
+        for name in ("smoothing_px", "edge_fraction"):
             _number(self, name, minimum=0.0)
+        if self.edge_fraction >= 1:
+            raise SegmentationError(f"edge_fraction must be below 1, got {self.edge_fraction!r}")
         for name in ("low_threshold", "high_threshold", "field_threshold", "seed_snr", "edge_snr"):
             _number(self, name, minimum=0.0, strict=True)
         _number(self, "reference_percentile", minimum=0.0, strict=True)
@@ -400,6 +411,30 @@ def _keep_touching(candidates: np.ndarray, seeds: np.ndarray) -> np.ndarray:
     return hit[labels]
 
 
+def _edge_level(attenuation: np.ndarray, detected: np.ndarray, sigma: float,
+                params: SegmentationParameters) -> np.ndarray | float:
+    """The attenuation a pixel needs to be vessel (step 5): ``edge_snr`` x the noise level, and
+    ``edge_fraction`` of the attenuation (smoothed over a pixel) on the centreline pixel of the
+    detected structures nearest to it."""
+    level = params.edge_snr * sigma
+    if params.edge_fraction <= 0 or not detected.any():
+        return level
+    from .thinning import guo_hall_thin
+
+    # on the box of the detected structures grown by the band (beyond it nothing is vessel); it
+    # holds every centreline pixel
+    grow = params.edge_band_px + 1
+    hit_rows, hit_cols = np.flatnonzero(detected.any(axis=1)), np.flatnonzero(detected.any(axis=0))
+    r0, r1 = max(hit_rows[0] - grow, 0), min(hit_rows[-1] + grow + 1, detected.shape[0])
+    c0, c1 = max(hit_cols[0] - grow, 0), min(hit_cols[-1] + grow + 1, detected.shape[1])
+    centreline = guo_hall_thin(detected[r0:r1, c0:c1])
+    _, (rows, cols) = ndi.distance_transform_edt(~centreline, return_indices=True)
+    smoothed = ndi.gaussian_filter(attenuation, 1.0)[r0:r1, c0:c1]
+    out = np.full(detected.shape, np.inf)  # outside the box: nothing is vessel there anyway
+    out[r0:r1, c0:c1] = np.maximum(level, params.edge_fraction * smoothed[rows, cols])
+    return out
+
+
 def segment_vessels_detailed(image: Any, parameters: Optional[SegmentationParameters] = None, *,
                              field: Optional[np.ndarray] = None) -> SegmentationResult:
     """Segment the vessels of a raw angiogram and return the intermediate images too.
@@ -445,7 +480,7 @@ def segment_vessels_detailed(image: Any, parameters: Optional[SegmentationParame
     detected = filters.apply_hysteresis_threshold(normalised, params.low_threshold, params.high_threshold) & area
     detected = _remove_small(detected, params.min_object_px)
     detected = _keep_touching(detected, attenuation >= params.seed_snr * sigma)
-    grown = (attenuation >= params.edge_snr * sigma) & area
+    grown = (attenuation >= _edge_level(attenuation, detected, sigma, params)) & area
     if params.edge_band_px > 0:
         grown &= ndi.binary_dilation(detected, structure=np.ones((3, 3), bool), iterations=params.edge_band_px)
     else:
