@@ -263,14 +263,16 @@ def test_lattice_points_in_tubes_equal_the_numpy_path_and_the_balls(seed):
         got, reference = _both(lambda: lattice_points_in_tubes(starts, ends, r0, r1, lattice, margin_mm=margin))
         np.testing.assert_array_equal(got, reference)
         centres, radii = _densified(starts, ends, r0, r1, 0.5 * lattice.spacing_mm)
-        points = lattice.points()
-        square = (radii + margin) ** 2
-        inside = np.zeros(len(points), dtype=bool)
-        for c, q in zip(centres, square):  # the test of the code: the squared distance across the column first
-            d = points - c
-            rest = q - d[:, 0] * d[:, 0] - d[:, 1] * d[:, 1]
-            inside |= (rest >= 0) & (d[:, 2] * d[:, 2] <= rest)
-        expected = {tuple(p) for p in points[inside]}
+        axis = lattice.axis_mm()
+        inside = np.zeros((lattice.resolution,) * 3, dtype=bool)
+        for c, grow in zip(centres, radii + margin):  # every lattice point of the ball's box, tested
+            lo = np.searchsorted(axis, c - grow - 1.0)
+            hi = np.searchsorted(axis, c + grow + 1.0, side="right")
+            dx, dy, dz = (axis[a:b] - x for a, b, x in zip(lo, hi, c))
+            # the test of the code: the squared distance across the column first
+            rest = grow ** 2 - (dx * dx)[:, None, None] - (dy * dy)[None, :, None]
+            inside[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] |= (rest >= 0) & ((dz * dz)[None, None, :] <= rest)
+        expected = {tuple(p) for p in lattice.points()[inside.ravel()]}
         assert {tuple(p) for p in got} == expected
 
 
