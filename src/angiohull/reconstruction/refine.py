@@ -314,7 +314,8 @@ def _rivals(axis_uv: np.ndarray, reach_px: np.ndarray, axis_points: np.ndarray, 
     hull. Each pair once, in the order of (axis point index, piece). (Per pair, the farthest such
     hull point is tried first, the lowest index of equally far ones: it is the one most likely
     across a gap; the others only when it is not.) ``axis_points`` and ``tube_points`` are (n, 3)
-    integer lattice indices into the volume ``hull``."""
+    integer lattice indices into the volume ``hull``. The compiled kernel, where numba is
+    installed, gives the same pairs."""
     compiled = kernels()
     if compiled is not None:
         return compiled.rival_pairs(np.ascontiguousarray(axis_uv, dtype=np.float64),
@@ -594,10 +595,6 @@ def _lattice_shells(cells: int) -> dict[int, np.ndarray]:
 
 
 _SHELLS = _lattice_shells(8)
-# the same table for the compiled tie step: the offsets of squared length n are rows
-# _SHELL_BOUNDS[n]:_SHELL_BOUNDS[n + 1] of _SHELL_OFFSETS
-_SHELL_OFFSETS = np.concatenate([_SHELLS[n] for n in sorted(_SHELLS)]).astype(np.int64)
-_SHELL_BOUNDS = np.searchsorted((_SHELL_OFFSETS * _SHELL_OFFSETS).sum(axis=1), np.arange(max(_SHELLS) + 2))
 
 
 def _nearest_axis(axis_ijk: np.ndarray, axis_mm: np.ndarray, query_ijk: np.ndarray, query_mm: np.ndarray,
@@ -615,7 +612,7 @@ def _nearest_axis(axis_ijk: np.ndarray, axis_mm: np.ndarray, query_ijk: np.ndarr
     are the axis points on the shell of lattice offsets of the same squared length around the
     query, read from a volume (up to 8 spacings away; :func:`nearest_with_ties` beyond)."""
     compiled = kernels()
-    if compiled is not None:
+    if compiled is not None and len(axis_ijk) and len(query_ijk):
         return _nearest_axis_compiled(compiled, axis_ijk, axis_mm, query_ijk, query_mm, reach_mm)
     return _nearest_axis_numpy(axis_ijk, axis_mm, query_ijk, query_mm, reach_mm)
 
@@ -662,8 +659,10 @@ _AXIS_CUBE_CELLS = 4  # the compiled search bins the axis points on cubes of thi
 
 def _nearest_axis_compiled(compiled, axis_ijk: np.ndarray, axis_mm: np.ndarray, query_ijk: np.ndarray,
                            query_mm: np.ndarray, reach_mm: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_nearest_axis` with the compiled shell search; the queries it cannot settle (no axis
-    point on the shell table, or at the reach to rounding) go the NumPy way."""
+    """:func:`_nearest_axis` by the compiled kernel (axis points binned on cubes, the equally near
+    ones by their whole-number squared lattice distance): the same distances and indices; the
+    queries it cannot settle (the nearest beyond the shell table, or at the reach to rounding) go
+    the NumPy way."""
     distance, index, settled = compiled.nearest_lattice_axis(
         np.ascontiguousarray(axis_ijk, dtype=np.int64), np.ascontiguousarray(axis_mm, dtype=np.float64),
         np.ascontiguousarray(query_ijk, dtype=np.int64), np.ascontiguousarray(query_mm, dtype=np.float64),
