@@ -419,14 +419,11 @@ def _edge_level(attenuation: np.ndarray, detected: np.ndarray, sigma: float,
     level = params.edge_snr * sigma
     if params.edge_fraction <= 0 or not detected.any():
         return level
-    from .thinning import guo_hall_thin
+    from .thinning import guo_hall_thin, pixel_box
 
     # on the box of the detected structures grown by the band (beyond it nothing is vessel); it
     # holds every centreline pixel
-    grow = params.edge_band_px + 1
-    hit_rows, hit_cols = np.flatnonzero(detected.any(axis=1)), np.flatnonzero(detected.any(axis=0))
-    r0, r1 = max(hit_rows[0] - grow, 0), min(hit_rows[-1] + grow + 1, detected.shape[0])
-    c0, c1 = max(hit_cols[0] - grow, 0), min(hit_cols[-1] + grow + 1, detected.shape[1])
+    r0, r1, c0, c1 = pixel_box(detected, params.edge_band_px + 1)
     centreline = guo_hall_thin(detected[r0:r1, c0:c1])
     _, (rows, cols) = ndi.distance_transform_edt(~centreline, return_indices=True)
     smoothed = ndi.gaussian_filter(attenuation, 1.0)[r0:r1, c0:c1]

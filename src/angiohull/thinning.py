@@ -39,7 +39,7 @@ import numpy as np
 
 from .compiled import kernels
 
-__all__ = ["guo_hall_thin", "guo_hall_thin_many", "guo_hall_skeleton_pixels", "GUO_HALL_TABLES"]
+__all__ = ["guo_hall_thin", "guo_hall_thin_many", "guo_hall_skeleton_pixels", "GUO_HALL_TABLES", "pixel_box"]
 
 
 def _rule_tables() -> np.ndarray:
@@ -59,6 +59,18 @@ def _rule_tables() -> np.ndarray:
 
 GUO_HALL_TABLES = _rule_tables()
 """(2, 256) bool: the deletion rule of each subiteration by neighbourhood code (see the module notes)."""
+
+
+def pixel_box(image: np.ndarray, margin: int = 0) -> tuple[int, int, int, int] | None:
+    """``(row start, row stop, column start, column stop)`` of the box that holds the nonzero
+    pixels of a 2D image, grown by ``margin`` pixels (within the image); None when there are none.
+    Thinning, mask cleaning and the maps that only matter near the vessel work on it."""
+    rows = np.flatnonzero(np.any(image, axis=1))
+    if len(rows) == 0:
+        return None
+    cols = np.flatnonzero(np.any(image, axis=0))
+    return (max(int(rows[0]) - margin, 0), min(int(rows[-1]) + 1 + margin, image.shape[0]),
+            max(int(cols[0]) - margin, 0), min(int(cols[-1]) + 1 + margin, image.shape[1]))
 
 
 def guo_hall_thin(mask: np.ndarray, *, keep_edge: bool = False) -> np.ndarray:
@@ -133,11 +145,9 @@ def _thinned_boxes(masks: list[np.ndarray], keep_edge: bool) -> list[tuple[tuple
     boxes = []
     for i, m in enumerate(masks):
         foreground = m != 0
-        hit_rows = np.flatnonzero(foreground.any(axis=1))
-        if len(hit_rows) == 0:
-            continue
-        hit_cols = np.flatnonzero(foreground.any(axis=0))
-        boxes.append((i, foreground, hit_rows[0], hit_rows[-1] + 1, hit_cols[0], hit_cols[-1] + 1))
+        box = pixel_box(foreground)
+        if box is not None:
+            boxes.append((i, foreground, *box))
     if not boxes:
         return []
     # the bounding boxes one under the other, each with a background margin of one pixel, flattened

@@ -131,6 +131,7 @@ from scipy.fft import irfft2, next_fast_len, rfft2
 from ..compiled import kernels
 from ..errors import ReconstructionError
 from ..geometry import Projection, cube_half_edge_mm
+from ..thinning import pixel_box
 from .cube import Lattice
 from .centreline_fit import (Centreline, consistency_cost, fit_jointly, fit_scales_jointly, fit_view_scale,
                              polish_shifts)
@@ -308,12 +309,8 @@ class _MaskSpectrum:
     pixels (the whole image when it has none) padded by the window on every side."""
 
     def __init__(self, mask_near: np.ndarray, window: int):
-        hit_rows, hit_cols = np.flatnonzero(mask_near.any(axis=1)), np.flatnonzero(mask_near.any(axis=0))
-        if len(hit_rows):
-            self.row0, self.col0 = int(hit_rows[0]), int(hit_cols[0])
-            self.box = (int(hit_rows[-1]) + 1 - self.row0, int(hit_cols[-1]) + 1 - self.col0)
-        else:
-            self.row0, self.col0, self.box = 0, 0, mask_near.shape
+        r0, r1, c0, c1 = pixel_box(mask_near) or (0, mask_near.shape[0], 0, mask_near.shape[1])
+        self.row0, self.col0, self.box = r0, c0, (r1 - r0, c1 - c0)
         rows, cols = self.box
         self.shape = (next_fast_len(rows + 2 * window, real=True), next_fast_len(cols + 2 * window, real=True))
         canvas = np.zeros(self.shape)

@@ -75,7 +75,7 @@ from scipy.spatial import cKDTree
 from .. import options
 from ..compiled import kernels
 from ..geometry import Projection, canonical_storage
-from ..thinning import guo_hall_thin as thin
+from ..thinning import guo_hall_thin as thin, pixel_box
 from ..tree.voxels import dilated
 from .cube import Lattice
 from .nearest import nearest_with_ties
@@ -137,8 +137,8 @@ def clean_mask(mask: np.ndarray, min_neighbours: int = 2, fill_neighbours: int =
     """
     mask = np.asarray(mask, dtype=bool)
     out = np.zeros(mask.shape, dtype=bool)
-    hit_rows, hit_cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-    if fill_neighbours <= 0 or mask.ndim != 2 or len(hit_rows) == 0:
+    box = pixel_box(mask, 1) if mask.ndim == 2 else None
+    if fill_neighbours <= 0 or box is None:
         kernel = np.ones((3, 3), dtype=np.int32)
         kernel[1, 1] = 0
         neighbours = ndi.convolve(mask.astype(np.int32), kernel, mode="constant")
@@ -146,8 +146,7 @@ def clean_mask(mask: np.ndarray, min_neighbours: int = 2, fill_neighbours: int =
     # only the box around the vessel pixels, grown by one, can change: farther pixels have no
     # vessel neighbour (and stay background); within it, the neighbours are counted on a copy
     # padded with a ring of background (the pixels around the box, or outside the image)
-    r0, r1 = max(hit_rows[0] - 1, 0), min(hit_rows[-1] + 2, mask.shape[0])
-    c0, c1 = max(hit_cols[0] - 1, 0), min(hit_cols[-1] + 2, mask.shape[1])
+    r0, r1, c0, c1 = box
     crop = mask[r0:r1, c0:c1]
     padded = np.zeros((r1 - r0 + 2, c1 - c0 + 2), dtype=np.uint8)
     padded[1:-1, 1:-1] = crop
@@ -545,12 +544,12 @@ def tube_axis(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
 def _box(mask: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[tuple[int, int], tuple[int, int]]:
     """(row, col) start and stop of the box that holds the mask's pixels and (rows, cols), grown by
     one pixel (within the image)."""
-    hit_rows, hit_cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
     low = [rows.min(initial=mask.shape[0]), cols.min(initial=mask.shape[1])]
     high = [rows.max(initial=-1), cols.max(initial=-1)]
-    if len(hit_rows):
-        low = [min(low[0], hit_rows[0]), min(low[1], hit_cols[0])]
-        high = [max(high[0], hit_rows[-1]), max(high[1], hit_cols[-1])]
+    box = pixel_box(mask)
+    if box is not None:
+        low = [min(low[0], box[0]), min(low[1], box[2])]
+        high = [max(high[0], box[1] - 1), max(high[1], box[3] - 1)]
     start = (max(int(low[0]) - 1, 0), max(int(low[1]) - 1, 0))
     stop = (min(int(high[0]) + 2, mask.shape[0]), min(int(high[1]) + 2, mask.shape[1]))
     return start, stop
