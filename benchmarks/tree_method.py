@@ -243,10 +243,16 @@ def main() -> None:
     parser.add_argument("--no-shared", action="store_true", help="skip the XCAT vessel and the authors' studies")
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per case of the time section (default 5)")
     parser.add_argument("--timing-only", action="store_true", help="only the time section (no pool, no scores)")
+    parser.add_argument("--setup", action="append", choices=list(SETUPS), default=None,
+                        help="only this generated setup (repeatable): its section alone, without the authors' studies, "
+                             "the XCAT vessel and the time section")
     args = parser.parse_args()
+    setups = list(SETUPS) if args.setup is None else args.setup
+    if args.setup is not None:
+        args.no_shared = True
     start = time.perf_counter()
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    tasks = [] if args.timing_only else [(kind, i, setup) for setup in SETUPS for kind in ("rca", "left")
+    tasks = [] if args.timing_only else [(kind, i, setup) for setup in setups for kind in ("rca", "left")
                                          for i in range(args.trees)]
     peer_folder = SHARED / "benchmarks" / "peer-synthetic"
     studies = (sorted(peer_folder.glob("*_*_*")) if peer_folder.is_dir() and not (args.no_shared or args.timing_only)
@@ -260,14 +266,15 @@ def main() -> None:
         xcat_rows = list(pool.map(_xcat, xcat_tasks))
     rows = rows if rows else []
     load = os.getloadavg()[0]  # what else ran on the machine as the time section began
-    timing = _timing(args.repeats)
+    timing = _timing(args.repeats) if args.setup is None else []
     elapsed = time.perf_counter() - start
     command = "--timing-only" if args.timing_only else f"--trees {args.trees} --workers {args.workers}"
+    command += "".join(f' --setup "{setup}"' for setup in args.setup or ())
     lines = ["# Results: the tree method against the visual hull", "",
              f"Produced by `OPENBLAS_NUM_THREADS=1 python benchmarks/tree_method.py {command}` on {datetime.date.today()}, commit {commit}, {platform.machine()} with "
              f"{os.cpu_count()} cores, Python {platform.python_version()} ({library_versions()}), in {elapsed:.0f} s. The same "
              f"defaults for every case; mean ± sd (median).", ""]
-    for setup in [] if args.timing_only else SETUPS:
+    for setup in [] if args.timing_only else setups:
         views = SETUPS[setup][0]
         lines += [f"## {setup}" + ("" if views == "random" else f": {', '.join(views)}"), "",
                   "| trees | method | Dice3D % | Chamfer mm | centerline mean mm | Ot(1 mm) | Ot(1 mm) reverse | "
@@ -302,8 +309,8 @@ def main() -> None:
         lines.append("")
     if xcat_rows:
         lines += _xcat_section(xcat_rows)
-    stage_names = list(timing[0]["stages_s"])
-    lines += ["## Time of the tree method, two 512 x 512 views", "",
+    stage_names = list(timing[0]["stages_s"]) if timing else []
+    lines += [] if not timing else ["## Time of the tree method, two 512 x 512 views", "",
               f"One process, medians of {args.repeats} runs per case after a first run (imports done); seconds. "
               f"Load average as it began: {load:.2f} on {os.cpu_count()} cores (above 1, other work shared the machine "
               "and these are upper bounds).", "",
@@ -311,7 +318,8 @@ def main() -> None:
     for t in timing:
         lines.append(f"| {t['kind']} seed {t['seed']} | **{t['total_s']:.2f}** | "
                      + " | ".join(f"{t['stages_s'][k]:.2f}" for k in stage_names) + " |")
-    lines.append("")
+    if timing:
+        lines.append("")
     failures = [f"{r['setup']} {r['kind']} {r['seed']} {r['method']}: {r['error']}" for r in rows if "error" in r]
     failures += [f"authors' {r['study']} ({r['reading']}) {r['method']}: {r['error']}" for r in peer_rows if "error" in r]
     failures += [f"XCAT views {r['views']} {r['method']} ({r['preset']}): {r.get('error') or r['tree_error']}"
