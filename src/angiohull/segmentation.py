@@ -441,7 +441,7 @@ def _edge_level(attenuation: np.ndarray, detected: np.ndarray, band: np.ndarray,
     fraction = np.full(centre.shape, params.edge_fraction)
     if params.edge_profile > 0:
         noise_edge = _keep_touching((attenuation[box] >= level) & band[box], detected[box])
-        # a pixel centre on the edge of a vessel w px wide lies w + 0.5 px from the nearest outside one
+        # the centreline pixel of a vessel of half-width w lies w + 0.5 px from the nearest outside pixel centre
         half_width = np.maximum(ndi.distance_transform_edt(noise_edge)[rows, cols] - 0.5, 1.0)
         fraction = np.maximum(fraction, params.edge_profile / np.sqrt(half_width))
     out = np.full(detected.shape, np.inf)  # outside the box: nothing is vessel there anyway
