@@ -247,6 +247,8 @@ def main() -> None:
                         help="only this generated setup (repeatable): its section alone, without the authors' studies, "
                              "the XCAT vessel and the time section")
     args = parser.parse_args()
+    if args.setup is not None and args.timing_only:
+        parser.error("--setup and --timing-only exclude each other (a setup's section has no time section)")
     setups = list(SETUPS) if args.setup is None else args.setup
     if args.setup is not None:
         args.no_shared = True
