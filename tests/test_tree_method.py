@@ -66,6 +66,28 @@ def test_a_diagonal_staircase_is_one_chain_not_a_string_of_junctions():
     assert np.count_nonzero(graph.degree >= 3) == 0
 
 
+def test_the_mask_core_keeps_the_middle_half_of_a_bar_and_all_of_a_thin_one():
+    from angiohull.reconstruction.model import _view_data
+
+    # a bar 9 px wide (rows 10-18) and a line 1 px wide (row 40): the bar's middle row is 5 px from
+    # the background, its half-width 4.5 px; a row k px off the middle is 4.5 - k deep, so the core
+    # at 0.5 keeps k <= 2.25 (rows 12-16); the line is all within a pixel of its skeleton
+    mask = np.zeros((60, 120), dtype=bool)
+    mask[10:19, 20:100] = True
+    mask[40, 20:100] = True
+    projection = _views()[0]
+    whole = _view_data(projection, mask, 0.0).image
+    core = _view_data(projection, mask, 0.5).image
+    np.testing.assert_array_equal(whole, mask.astype(np.float32))
+    assert not core[~mask].any()  # only mask pixels
+    middle = slice(40, 80)  # away from the bar's ends
+    assert np.flatnonzero(core[:35, middle].all(axis=1)).tolist() == [12, 13, 14, 15, 16]
+    assert not core[:35, middle][[10, 11, 17, 18]].any()
+    assert core[40, 20:100].all()
+    # fraction 0.9: 4.5 - k >= 4.05 keeps k = 0 only, and the skeleton's neighbours within a pixel
+    assert np.flatnonzero(_view_data(projection, mask, 0.9).image[:35, middle].all(axis=1)).tolist() == [13, 14, 15]
+
+
 def test_midpoint_triangulation_of_two_rays_through_a_point_gives_the_point():
     point = np.array([[3.0, -2.0, 5.0]])
     ca, cb = np.array([0.0, -800.0, 0.0]), np.array([800.0, 0.0, 100.0])

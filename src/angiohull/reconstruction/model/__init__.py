@@ -9,7 +9,8 @@ views' 2D centerlines and widths say where the vessels are. Steps:
 2. **Correspondence** (:mod:`.matching`): each view's skeleton pixels are matched into a partner
    view (with two views, each into the other; with more, each into the view most nearly
    perpendicular to it, every candidate checked against the remaining views' masks and
-   skeletons): candidates where the epipolar line crosses the partner's mask, costs for the radius
+   skeletons): candidates where the epipolar line crosses the partner's mask core (its pixels at
+   least ``core_fraction`` of the local half-width deep), costs for the radius
    the two views show at that depth, 3D continuity and turns onto crossing vessels, minimised
    exactly over the pixel graph. Then ``claim_rounds`` more rounds, in which a candidate whose
    partner pixel the reverse matching placed elsewhere costs more.
@@ -53,7 +54,7 @@ from ...tree import Branch, VesselTree
 from ..cube import Lattice
 from ..vessel_tree import TREE_SETTINGS, TreeBuild, TreeSettings, hull_tree
 from .graph2d import CenterlineGraph2D, centerline_graph
-from .matching import MATCH_SETTINGS, MatchSettings, ViewData, match_pixels
+from .matching import MATCH_SETTINGS, MatchSettings, ViewData, mask_core, match_pixels
 from .tubes import lattice_points_in_tubes
 
 __all__ = ["ModelSettings", "MODEL_SETTINGS", "ModelBuild", "model_tree", "centerline_graph", "CenterlineGraph2D",
@@ -113,7 +114,8 @@ def _partners(projections: Sequence[Projection]) -> list[tuple[int, int]]:
     return [(a, int(np.argmin(cosine[a]))) for a in range(len(projections))]
 
 
-def _view_data(projection: Projection, mask: np.ndarray) -> ViewData:
+def _view_data(projection: Projection, mask: np.ndarray,
+               core_fraction: float = MATCH_SETTINGS.core_fraction) -> ViewData:
     graph = centerline_graph(mask)
     index = np.full(mask.shape, -1, dtype=np.int64)
     uv = graph.uv_px.astype(np.int64)
@@ -123,12 +125,15 @@ def _view_data(projection: Projection, mask: np.ndarray) -> ViewData:
         nearest = index[rows, cols]
     else:
         skeleton_px, nearest = np.full(mask.shape, np.inf), index
+    inside_px = ndi.distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1]
     rows, cols = np.nonzero(mask)
     box = (np.array([cols.min() - 2.0, rows.min() - 2.0]), np.array([cols.max() + 2.0, rows.max() + 2.0]))
-    return ViewData(projection=projection, mask=mask, graph=graph, image=mask.astype(np.float32), box_uv=box,
-                    inside_px=ndi.distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1],
-                    nearest_skeleton=nearest, outside_px=ndi.distance_transform_edt(~mask),
-                    skeleton_px=skeleton_px, focal_px=float(max(projection.focal_lengths_px)))
+    return ViewData(projection=projection, mask=mask, graph=graph,
+                    image=mask_core(mask, inside_px, skeleton_px, nearest, graph.half_width_px,
+                                    core_fraction).astype(np.float32),
+                    box_uv=box, inside_px=inside_px, nearest_skeleton=nearest,
+                    outside_px=ndi.distance_transform_edt(~mask), skeleton_px=skeleton_px,
+                    focal_px=float(max(projection.focal_lengths_px)))
 
 
 def _without(tree: VesselTree, leaf: int) -> VesselTree:
@@ -360,7 +365,7 @@ def _correspondence_volume(projections: Sequence[Projection], masks: Sequence[np
     pair's pixels matched, the skeleton pixels per view, and per view its own matching's 3D point
     per skeleton pixel (nan where unmatched) with its map of the nearest skeleton pixel."""
     start = time.perf_counter()
-    views = [_view_data(p, m) for p, m in zip(projections, masks)]
+    views = [_view_data(p, m, settings.match.core_fraction) for p, m in zip(projections, masks)]
     timings["centerlines_2d"] = time.perf_counter() - start
     say(f"2D centerlines: {', '.join(str(v.graph.n_pixels) for v in views)} skeleton pixels")
 

@@ -4,9 +4,15 @@ mask, then an exact min-sum choice of one candidate (or none) per pixel over the
 Notation: view A's skeleton pixels are matched into view B; ``p`` is a pixel of A.
 
 1. **Candidates.** Every 3D point seen at ``p`` lies on ``p``'s ray, which projects into B as the
-   epipolar line of ``p``. B's mask is sampled along that line (bilinear, every ``line_step_px``,
-   within ``depth_range_mm`` of the isocentre's depth along the ray); each run of vessel pixels
-   is a candidate at its middle. A run many vessel widths long (a vessel of B running along the
+   epipolar line of ``p``. B's mask *core* is sampled along that line (bilinear, every
+   ``line_step_px``, within ``depth_range_mm`` of the isocentre's depth along the ray); each run of
+   vessel pixels is a candidate at its middle. The core (:func:`mask_core`) is the mask's pixels at
+   least ``core_fraction`` of the local half-width deep, and those within a pixel of the skeleton:
+   a line that only grazes a vessel's rim, or a bump or halo on a segmented mask's edge, gives no
+   run there, and a run's middle sits nearer the axis. (Since 2026-12-03; the whole mask before.
+   200 generated trees in two clinical views, paired: Dice3D +0.37 ± 0.30 points with exact masks,
+   +0.92 ± 0.46 with segmented ones, radius error unchanged; fractions 0.3-0.9 all gained, within
+   the noise of each other.) The half-widths (below) and the skeleton are the whole mask's. A run many vessel widths long (a vessel of B running along the
    line) is split into pieces a width long (at most ``max_pieces``), each a candidate: there the
    line does not fix the depth, and the neighbours decide. Where an even number of pieces leaves
    out the run's middle and that middle lies within ``middle_skeleton_px`` of B's skeleton, the
@@ -57,7 +63,7 @@ from ...geometry import Projection
 from ..epipolar import ray_directions
 from .graph2d import CenterlineGraph2D
 
-__all__ = ["MatchSettings", "MATCH_SETTINGS", "ViewData", "match_pixels", "triangulate_midpoint"]
+__all__ = ["MatchSettings", "MATCH_SETTINGS", "ViewData", "mask_core", "match_pixels", "triangulate_midpoint"]
 
 
 @dataclass(frozen=True)
@@ -84,6 +90,7 @@ class MatchSettings:
     gap_switch_cost: float = 2.0
     claim_px: float = 2.0  # B's own match of q lies farther than this plus the half-width from p in A ...
     claim_cost: float = 1.5  # ... costs this
+    core_fraction: float = 0.5  # the epipolar lines read B's mask pixels this share of the half-width deep (1.)
 
 
 MATCH_SETTINGS = MatchSettings()
@@ -96,7 +103,7 @@ class ViewData:
     projection: Projection
     mask: np.ndarray  # (rows, cols) bool
     graph: CenterlineGraph2D
-    image: np.ndarray  # (rows, cols) float32 mask (1 vessel, 0 background)
+    image: np.ndarray  # (rows, cols) float32: what the epipolar lines read (1 vessel, 0 background)
     box_uv: tuple[np.ndarray, np.ndarray]  # (u, v) corners of the mask's bounding box, 2 px wider
     inside_px: np.ndarray  # (rows, cols) distance of each pixel to the nearest background pixel
     nearest_skeleton: np.ndarray  # (rows, cols) index of the nearest skeleton pixel (-1: none)
@@ -117,6 +124,18 @@ def triangulate_midpoint(centre_a: np.ndarray, dir_a: np.ndarray, centre_b: np.n
     s = (b * e - d) / denom
     t = (e - b * d) / denom
     return 0.5 * ((centre_a + s[:, None] * dir_a) + (centre_b + t[:, None] * dir_b))
+
+
+def mask_core(mask: np.ndarray, inside_px: np.ndarray, skeleton_px: np.ndarray, nearest_skeleton: np.ndarray,
+              half_width_px: np.ndarray, fraction: float) -> np.ndarray:
+    """The mask's pixels at least ``fraction`` of the local half-width deep (their distance to the
+    background, less half a pixel, against the half-width at the nearest skeleton pixel), and every
+    mask pixel within one pixel of the skeleton, so that the core of a thin vessel stays a
+    4-connected band. ``fraction`` 0 gives the mask; 0.5 the middle half of each vessel's width."""
+    if fraction <= 0 or len(half_width_px) == 0:
+        return mask.copy()
+    half = half_width_px[np.maximum(nearest_skeleton, 0)]
+    return mask & ((inside_px - 0.5 >= fraction * half) | (skeleton_px <= 1.0))
 
 
 def _sample(image: np.ndarray, uv: np.ndarray, outside: float) -> np.ndarray:
