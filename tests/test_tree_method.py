@@ -88,6 +88,40 @@ def test_the_mask_core_keeps_the_middle_half_of_a_bar_and_all_of_a_thin_one():
     assert np.flatnonzero(_view_data(projection, mask, 0.9).image[:35, middle].all(axis=1)).tolist() == [13, 14, 15]
 
 
+def test_the_mask_core_takes_the_widest_disc_not_a_side_spur_of_the_skeleton():
+    from types import SimpleNamespace
+
+    from scipy import ndimage as ndi
+
+    from angiohull.reconstruction.model.matching import mask_core
+
+    # a bar 41 px wide (columns 60-100, its axis column 80, 21 px from the background there) whose
+    # skeleton has a spur from the axis at row 40 towards the corner (as a wide vessel's skeleton
+    # forks where it meets the image's edge): the spur's pixels lie near the background, and judged
+    # by the nearest skeleton pixel the bar's left flank would count as deep beside it
+    mask = np.zeros((200, 160), dtype=bool)
+    mask[:, 60:101] = True
+    axis = [(80, r) for r in range(40, 200)]
+    spur = [(80 - k, 40 - k) for k in range(1, 16)]
+    uv = np.array(axis + spur, dtype=float)
+    inside = ndi.distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1]
+    index = np.full(mask.shape, -1)
+    index[uv[:, 1].astype(int), uv[:, 0].astype(int)] = np.arange(len(uv))
+    skeleton_px, (rr, cc) = ndi.distance_transform_edt(index < 0, return_indices=True)
+    graph = SimpleNamespace(n_pixels=len(uv), uv_px=uv, half_width_px=inside[uv[:, 1].astype(int), uv[:, 0].astype(int)] - 0.5)
+    core = mask_core(mask, graph, inside, skeleton_px, index[rr, cc], 0.5)
+    # the axis's disc (21 px) covers the flank: a column k px off the axis is 20.5 - k deep against
+    # 0.5 x 20.5, so the core is columns 70-90 on every row the disc reaches fully, spur or not,
+    # and the skeleton's band (within a pixel of it) besides
+    band = skeleton_px <= 1.0
+    middle = np.zeros_like(mask)
+    middle[:, 70:91] = True
+    np.testing.assert_array_equal(core[25:170], (middle | band)[25:170])  # the image's bottom edge is background
+    half = graph.half_width_px[index[rr, cc]]
+    by_nearest = mask & ((inside - 0.5 >= 0.5 * half) | band)
+    assert (by_nearest & ~band & ~middle)[25:170].sum() > 50  # what the spur's own half-width would keep
+
+
 def test_midpoint_triangulation_of_two_rays_through_a_point_gives_the_point():
     point = np.array([[3.0, -2.0, 5.0]])
     ca, cb = np.array([0.0, -800.0, 0.0]), np.array([800.0, 0.0, 100.0])

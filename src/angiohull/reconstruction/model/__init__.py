@@ -129,8 +129,7 @@ def _view_data(projection: Projection, mask: np.ndarray,
     rows, cols = np.nonzero(mask)
     box = (np.array([cols.min() - 2.0, rows.min() - 2.0]), np.array([cols.max() + 2.0, rows.max() + 2.0]))
     return ViewData(projection=projection, mask=mask, graph=graph,
-                    image=mask_core(mask, inside_px, skeleton_px, nearest, graph.half_width_px,
-                                    core_fraction).astype(np.float32),
+                    image=mask_core(mask, graph, inside_px, skeleton_px, nearest, core_fraction).astype(np.float32),
                     box_uv=box, inside_px=inside_px, nearest_skeleton=nearest,
                     outside_px=ndi.distance_transform_edt(~mask), skeleton_px=skeleton_px,
                     focal_px=float(max(projection.focal_lengths_px)))
