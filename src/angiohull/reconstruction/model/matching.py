@@ -14,8 +14,8 @@ Notation: view A's skeleton pixels are matched into view B; ``p`` is a pixel of 
    views, paired: Dice3D +0.40 ± 0.33 points with exact masks, +0.52 ± 0.44 with segmented ones,
    radius error unchanged within 0.007 mm. The local half-width read at the nearest skeleton pixel
    instead gained +0.37 / +0.92 there but put the XCAT vessel's centerline 0.29 mm farther from its
-   truth: where a wide vessel's skeleton forks towards its corners, a spur's small half-width let
-   the flank beside it into the core.) The half-widths (below) and the skeleton are the whole
+   truth: where a wide vessel's skeleton forks into prongs near its ends, a spur's small half-width
+   let the flank beside it into the core.) The half-widths (below) and the skeleton are the whole
    mask's. A run many vessel widths long (a vessel of B running along the line) is split into pieces
    a width long (at most ``max_pieces``), each a candidate: there the line does not fix the depth,
    and the neighbours decide. Where an even number of pieces leaves out the run's middle and that
@@ -138,7 +138,7 @@ def mask_core(mask: np.ndarray, graph: CenterlineGraph2D, inside_px: np.ndarray,
     local half-width is that of the widest skeleton disc covering it (a skeleton pixel's disc: its
     own distance to the background in levels half a pixel apart, a pixel apart from 8 px, less
     half a pixel), not that of the nearest skeleton pixel, which is a side spur's where the
-    skeleton forks towards a wide vessel's corners; a pixel no disc covers takes its nearest
+    skeleton forks into prongs near a wide vessel's end; a pixel no disc covers takes its nearest
     skeleton pixel's. ``fraction`` 0 gives the mask; 0.5 the middle half of each vessel's width."""
     if fraction <= 0 or graph.n_pixels == 0:
         return mask.copy()
