@@ -143,20 +143,21 @@ def mask_core(mask: np.ndarray, graph: CenterlineGraph2D, inside_px: np.ndarray,
     if fraction <= 0 or graph.n_pixels == 0:
         return mask.copy()
     rows, cols = np.nonzero(mask)
-    lo_r, hi_r, lo_c, hi_c = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
-    inside = inside_px[lo_r:hi_r, lo_c:hi_c]
-    uv = graph.uv_px.astype(np.int64)
-    radius = inside_px[uv[:, 1], uv[:, 0]]
+    box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))  # the skeleton lies inside
+    uv = graph.uv_px.astype(np.int64) - np.array([box[1].start, box[0].start])
+    inside = inside_px[box]
+    radius = inside[uv[:, 1], uv[:, 0]]
     radius = np.where(radius < 8.0, np.floor(2.0 * radius) / 2.0, np.floor(radius))  # levels 0.5 px apart, 1 px from 8
     covering = np.zeros(inside.shape)
     for level in np.unique(radius):  # ascending: a wider disc overwrites a narrower one
         seeds = np.ones(inside.shape, dtype=bool)
         chosen = uv[radius >= level]
-        seeds[chosen[:, 1] - lo_r, chosen[:, 0] - lo_c] = False
+        seeds[chosen[:, 1], chosen[:, 0]] = False
         covering[ndi.distance_transform_edt(seeds) <= level] = level
-    half = graph.half_width_px[np.maximum(nearest_skeleton, 0)]
-    half[lo_r:hi_r, lo_c:hi_c] = np.where(covering > 0, covering - 0.5, half[lo_r:hi_r, lo_c:hi_c])
-    return mask & ((inside_px - 0.5 >= fraction * half) | (skeleton_px <= 1.0))
+    half = np.where(covering > 0, covering - 0.5, graph.half_width_px[np.maximum(nearest_skeleton[box], 0)])
+    core = np.zeros_like(mask)
+    core[box] = mask[box] & ((inside - 0.5 >= fraction * half) | (skeleton_px[box] <= 1.0))
+    return core
 
 
 def _sample(image: np.ndarray, uv: np.ndarray, outside: float) -> np.ndarray:
