@@ -101,7 +101,7 @@ class SegmentationParameters:
 
     The defaults suit 512 x 512 cardiac angiograms of about 0.2-0.3 mm per pixel at the isocentre
     (vessels 4-20 pixels wide). For other resolutions scale ``sigmas_px``, ``background_px``,
-    ``min_object_px`` (as the square) and ``edge_band_px`` with the pixel size.
+    ``min_object_px`` (as the square), ``edge_band_px`` and ``bridge_px`` with the pixel size.
     """
 
     vessels: str = field(default="dark", metadata=_help(
