@@ -178,8 +178,8 @@ def test_the_profile_edge_brings_the_mask_edge_to_the_silhouette(rendered):
     difference of the areas over the true outline's length. On these five views (with the default
     bridging) the noise-level edge alone (``edge_profile`` 0) lies at +0.14 to +0.45 px (mean
     absolute 0.28 px); the default (``edge_profile`` 0.5: the blurred round vessel's edge level) at
-    -0.00 to +0.09 px (0.04 px), and a fifth of the centreline's attenuation (``edge_fraction`` 0.2)
-    at +0.00 to +0.13 px (0.06 px). (Without bridging, before 2026-12-03: -0.13 to +0.45, -0.30 to
+    -0.00 to +0.10 px (0.05 px), and a fifth of the centreline's attenuation (``edge_fraction`` 0.2)
+    at +0.00 to +0.14 px (0.06 px). (Without bridging, before 2026-12-03: -0.13 to +0.45, -0.30 to
     +0.09 and -0.28 to +0.13 px; the masks that lost a vessel's part beyond a gap came out narrow.)
     Dice rises on every view with either (default: +0.004 to +0.018), and the further conditions
     only ever remove pixels."""
