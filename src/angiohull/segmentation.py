@@ -50,7 +50,13 @@ a well-known operation with a documented parameter (:class:`SegmentationParamete
    Dice 0.946 -> 0.953).
    ``edge_fraction`` > 0 asks a constant fraction of ``A`` there as well (0.2: +0.02 px, Dice
    0.952, the option before the profile). ``edge_profile`` 0 and ``edge_fraction`` 0: the noise
-   level alone, the default before 2026-12-03.
+   level alone, the default before 2026-12-03. With bridging (``bridge_px`` > 0) the bridges stay,
+   and so does the detected structures' centreline wherever it leaves this mask and comes back,
+   joining two of its parts of ``min_object_px`` or more (:func:`_gaps_in_centreline`: a severe
+   stenosis that the vesselness still detects but whose attenuation falls below the edge level),
+   both three pixels wide (a cross) inside the detected structures: on the QCA benchmark's 3-view
+   segmented trees the stenoses of 50 % or more found rose from 60.7 % (no bridging) to 74.2 %
+   (bridges) and 86.5 % (both; docs/dicom.md).
 6. **Small-object removal** once more, and the field mask.
 
 Vessels are dark on a bright background (``vessels="dark"``, as X-ray intensity is recorded);
