@@ -301,3 +301,19 @@ def test_bridge_parameters_are_checked():
         SegmentationParameters(bridge_angle_deg=90)
     with pytest.raises(SegmentationError, match="bridge_angle_deg must be > 0"):
         SegmentationParameters(bridge_angle_deg=0)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_bridging_does_not_grow_a_network_out_of_ridge_texture(seed):
+    """A background of fine ridge-like texture (white noise smoothed by 3 px, attenuation 0.3) and
+    no vessel: its detected structures form a network. Bridging and the kept centreline add few
+    pixels to what the segmentation finds there without them (measured: 6.1 % and 5.2 %); without
+    the kept stretches' length limit (``bridge_px``) the centreline across the network was kept and
+    the masks grew 7.5 and 8.7 times."""
+    from scipy import ndimage as ndi
+
+    rng = np.random.default_rng(seed)
+    image = 1000.0 * np.exp(-0.3 * ndi.gaussian_filter(rng.normal(size=(512, 512)), 3.0)) + rng.normal(0.0, 5.0, (512, 512))
+    plain = np.count_nonzero(segment_vessels(image, SegmentationParameters(bridge_px=0)))
+    joined = np.count_nonzero(segment_vessels(image))
+    assert plain > 0 and joined <= 1.15 * plain
