@@ -182,16 +182,18 @@ def test_the_profile_edge_brings_the_mask_edge_to_the_silhouette(rendered):
     at +0.00 to +0.14 px (0.06 px). (Without bridging, before 2026-12-03: -0.13 to +0.45, -0.30 to
     +0.09 and -0.28 to +0.13 px; the masks that lost a vessel's part beyond a gap came out narrow.)
     Dice rises on every view with either (default: +0.004 to +0.018), and the further conditions
-    only ever remove pixels."""
+    only ever remove pixels. (The edge step alone: the densitometric widening of narrow vessels,
+    a later step, is off here.)"""
     from scipy import ndimage as ndi
 
     offsets = []
     for image in rendered:
         truth = image.mask
         outline = np.count_nonzero(truth & ~ndi.binary_erosion(truth))
-        plain = segment_vessels(image.image, SegmentationParameters(edge_profile=0.0))
-        profile = segment_vessels(image.image)
-        relative = segment_vessels(image.image, SegmentationParameters(edge_profile=0.0, edge_fraction=0.2))
+        edge_only = SegmentationParameters(density_radius_px=0.0)
+        plain = segment_vessels(image.image, edge_only.replace(edge_profile=0.0))
+        profile = segment_vessels(image.image, edge_only)
+        relative = segment_vessels(image.image, edge_only.replace(edge_profile=0.0, edge_fraction=0.2))
         offsets.append([(np.count_nonzero(m) - np.count_nonzero(truth)) / outline for m in (plain, profile, relative)])
         for narrower in (profile, relative):
             assert dice(narrower, truth) > dice(plain, truth)

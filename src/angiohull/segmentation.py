@@ -146,6 +146,9 @@ class SegmentationParameters:
         "(a vessel interrupted by a severe stenosis), px (0: off)"))
     bridge_angle_deg: float = field(default=30.0, metadata=_help(
         "... each end's direction within this angle of the line to the other end, degrees"))
+    density_radius_px: float = field(default=3.0, metadata=_help(
+        "vessels whose mask radius is at most this are widened to their densitometric radius (from the "
+        "attenuation integrated across them) where it is larger, px (0: off)"))
     collimator: bool = field(default=True, metadata=_help(
         "detect the collimator border and exclude it"))
     field_threshold: float = field(default=0.35, metadata=_help(
@@ -163,7 +166,7 @@ class SegmentationParameters:
             object.__setattr__(self, "collimator", bool(self.collimator))
         else:
             raise SegmentationError(f"collimator must be true or false, got {self.collimator!r}")
-        for name in ("smoothing_px", "edge_fraction", "edge_profile", "bridge_px"):
+        for name in ("smoothing_px", "edge_fraction", "edge_profile", "bridge_px", "density_radius_px"):
             _number(self, name, minimum=0.0)
         if self.edge_fraction >= 1:
             raise SegmentationError(f"edge_fraction must be below 1, got {self.edge_fraction!r}")
@@ -724,6 +727,10 @@ def segment_vessels_detailed(image: Any, parameters: Optional[SegmentationParame
         grown |= kept | (ndi.binary_dilation(kept) & detected)
     mask = _keep_touching(grown, detected)
     mask = _remove_small(mask, params.min_object_px) & area
+    if params.density_radius_px > 0 and mask.any():
+        from .densitometry import widen_narrow_vessels
+
+        mask = widen_narrow_vessels(mask, attenuation, _centreline(mask), max_radius_px=params.density_radius_px) & area
     return SegmentationResult(mask, area, attenuation, normalised, float(sigma), params)
 
 
