@@ -26,18 +26,35 @@ such a lumen from its integrated density instead; here:
 
 Measured on 12 trees of the QCA benchmark's renders (36 views; 2026-12-03), at centreline pixels
 of the segmented masks, against the true projected radius: for true radii of 1-2 px the
-densitometric radius is off by -0.04-0.00 px (median) with a spread of 0.38 px, the mask's own
-radius by -0.26 to -0.22 px with 0.9-1.0 px (2-3 px: -0.06-0.00 / 0.52 against -0.23-+0.02 / 0.91).
+densitometric radius is off by -0.04 to 0.00 px (median) with a spread (sd) of 0.38 px, the mask's
+own radius by -0.26 to -0.22 px with 0.9-1.0 px (2-3 px: -0.06 to 0.00 px and 0.52 px, against
+-0.23 to +0.02 px and 0.91 px). On 40 trees of the tree-method benchmark's renders (80 views),
+whose masks are a little wide on thin vessels: +0.07 to +0.15 px and 0.63-0.73 px for radii of
+1-2.5 px, the mask's +0.32 to +0.51 px and 0.81-0.93 px. Settings tried on the first set (radii
+of 1-3 px; median, spread): profiles reaching 1.5 R + 3 px, 3 parallel ones 0.5 px apart (the
+first version): -0.03 to +0.03 px, 0.39-0.59 px; R + 2 px: -0.07 to -0.23 px, 0.35-0.60 px;
+R + 4 px: -0.02 to +0.05 px, 0.38-0.54 px; the baseline from a smooth map of the background
+around the mask: spread 0.62-0.88 px, or from 3 px of tail or from beyond the reach: 0.40-0.67
+px; 7 parallel profiles instead of 5: the same.
+
+Limits. The profile's tails start 1.5 px past the mask's edge: a wide blur leaves some of a narrow
+vessel there, and the baseline takes it off (noiseless, blurred by a Gaussian of 1 px: the
+integral of a 1.2 px radius vessel comes out 10-11 % low, of 2 px 4-5 %, of 3.5 px 2-3 %; with
+0.5 px, within 1 %); the calibration on wider vessels takes back a part. The mask's radius ``R``
+is its distance transform at the centreline pixel, which exceeds the half-width by 0 or 0.5 px
+(by the parity of the width in pixels): ``mu`` carries that offset of the 2.5-5 px vessels, and the
+measurements above say how it nets out. ``mu`` is one value for
+the image: the contrast's concentration is assumed the same in every vessel, and a vessel that
+overlaps another, or runs within a few pixels of one, integrates both. The noise of a single
+radius is a third of a pixel or more; the mask only grows where the radius exceeds the mask's, so
+that noise widens a narrow vessel's mask on average (the 3D fit's median over three views or
+more takes part of it back).
 """
 
 from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage as ndi
-
-# the work is done on the mask's box grown by this (px): beyond it no profile reaches (a profile
-# spans at most the calibration's 5 px radius plus the reach, and the parallel profiles' 2 px)
-_BOX_MARGIN_PX = 16
 
 __all__ = ["centreline_tangents", "cross_section_integrals", "densitometric_radii", "widen_narrow_vessels"]
 
@@ -50,6 +67,9 @@ _TAIL_PX = 1.5  # the baseline: the samples within this distance of either end o
 _CALIBRATION_PX = (2.5, 5.0)  # mask radii (px) of the centreline pixels that calibrate mu
 _MIN_CALIBRATION = 20  # calibration pixels needed
 _GROW_MARGIN_PX = 0.25  # a narrow vessel is widened where the densitometric radius exceeds the mask's by more
+# the widening works on the mask's box grown by this (px): no profile reaches beyond it (at most the
+# calibration's 5 px radius plus the reach of 3 px, and the parallel profiles' 2 px along)
+_BOX_MARGIN_PX = 16
 
 
 def centreline_tangents(centreline: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:

@@ -59,6 +59,17 @@ a well-known operation with a documented parameter (:class:`SegmentationParamete
    segmented trees the stenoses of 50 % or more found rose from 60.7 % (no bridging) to 74.2 %
    (bridges) and 86.5 % (both; docs/dicom.md).
 6. **Small-object removal** once more, and the field mask.
+7. **Densitometric width of narrow vessels** (:mod:`angiohull.densitometry`). Where a severe
+   stenosis narrows the lumen to a pixel or two its attenuation falls to a few noise sigmas and the
+   edge level of step 5 cuts the mask short of the lumen (on the QCA benchmark's renders 0.8-1.0 px
+   too narrow at the narrowest points of lumens 1.5-3.5 px wide). The attenuation integrated
+   across a vessel is the contrast's ``mu`` x the lumen's area whatever the blur, so at each
+   centreline pixel of the mask whose radius there is at most ``density_radius_px``, the radius
+   ``sqrt(integral / (pi mu))``, with ``mu`` calibrated on the image's vessels of 2.5-5 px radius,
+   widens the mask (a disc) where it exceeds the mask's by more than 0.25 px. The mask only grows.
+   ``density_radius_px`` 0 gives the masks from before commit 932e387 exactly. On the QCA
+   benchmark's 3-view segmented trees the percent diameter stenosis error went from +5.5 +- 14.5 to
+   -1.4 +- 9.8 points and the false lesions from 3.00 to 1.83 per tree (docs/dicom.md).
 
 Vessels are dark on a bright background (``vessels="dark"``, as X-ray intensity is recorded);
 ``vessels="bright"`` handles inverted displays. Images are 2D arrays of any real dtype; only their
