@@ -119,7 +119,9 @@ class SegmentationParameters:
 
     The defaults suit 512 x 512 cardiac angiograms of about 0.2-0.3 mm per pixel at the isocentre
     (vessels 4-20 pixels wide). For other resolutions scale ``sigmas_px``, ``background_px``,
-    ``min_object_px`` (as the square), ``edge_band_px`` and ``bridge_px`` with the pixel size.
+    ``min_object_px`` (as the square), ``edge_band_px``, ``bridge_px`` and ``density_radius_px``
+    with the pixel size (the densitometric width calibrates on the image's vessels of 2.5-5 px
+    radius, fixed in pixels: with fewer than 20 centreline pixels of such vessels it does nothing).
     """
 
     vessels: str = field(default="dark", metadata=_help(
