@@ -410,12 +410,14 @@ def test_unseen_stubs_are_cut_where_no_view_sees_them():
 
 
 def test_a_foreshortened_straight_branch_does_not_hide_itself_but_a_hairpin_does():
-    # one view, branches of radius 1 mm. A straight 20 mm branch at 60 degrees to the image plane
-    # (foreshortening 0.5): its points 3-4.7 mm apart along it lie closer in the image than their
-    # two discs reach (0.5 * px_per_mm * arc < 2 * px_per_mm + 1.5 px), so the loop test on the 3D
-    # arc alone calls them a loop crossing itself; the image path between two points of a straight
-    # projected line is their image distance, so with image_path=True none is hidden. A hairpin in
-    # the image plane (legs 1.6 mm apart joined by a half circle) hides its legs either way.
+    # one view, branches of radius 1 mm (4.29 px here). A point's run is spoiled by a disc of its own
+    # branch farther along it than 3 mm (the two radii plus 1 mm) only where that disc, widened by
+    # 1.5 px, reaches the point's normal line: on a straight branch of foreshortening f the disc
+    # lies f * 4.29 px/mm * arc along the projected centreline, beyond the 5.79 px reach for
+    # arc >= 3 mm when f > 0.45. So at f = 0.5 no point hides itself; at f = 0.3 the points 3-4.5 mm
+    # apart do, unless the image path between them counts (image_path=True: a straight projected
+    # line's path is their image distance). A hairpin in the image plane (legs 1.6 mm apart joined
+    # by a half circle) hides its legs either way: each leg crosses the other's normal lines.
     from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _overlaps, _sections
 
     view = _views()[0]
@@ -423,20 +425,82 @@ def test_a_foreshortened_straight_branch_does_not_hide_itself_but_a_hairpin_does
     across = np.cross(into, [0.0, 0.0, 1.0])
     across /= np.linalg.norm(across)
     up = np.cross(across, into)
-    direction = np.cos(np.radians(60)) * across + np.sin(np.radians(60)) * into
-    straight = _line(-10 * direction, 10 * direction)
+
+    def straight(foreshortening):
+        angle = np.arccos(foreshortening)
+        direction = np.cos(angle) * across + np.sin(angle) * into
+        return _line(-10 * direction, 10 * direction)
+
     legs = 10 * np.linspace(0, 1, 21)[:, None] * up
     turn = np.linspace(0, np.pi, 11)[1:-1]
     bend = legs[-1] + 0.8 * (np.sin(turn)[:, None] * up + (1 - np.cos(turn))[:, None] * across)
     hairpin = np.concatenate([legs, bend, legs[::-1] + 1.6 * across]) + 30 * across
-    for points, loop in ((straight, False), (hairpin, True)):
+    for points, foreshortening, case in ((straight(0.5), 0.5, "clear"), (straight(0.3), 0.3, "arc rule"),
+                                         (hairpin, 1.0, "loop")):
         arrays = _Arrays.of(VesselTree((Branch(points, 1.0, name="b"),)))
         sections = _sections(arrays.points, arrays.tangents(), arrays.radius, [view],
                              [np.zeros(view.image_shape, np.float32)], 0.5)
-        np.testing.assert_allclose(sections.foreshortening[0, 5:-5], 0.5 if not loop else 1.0, atol=0.03)
-        old = _overlaps(sections, arrays, TREE_SETTINGS)[0]
-        new = _overlaps(sections, arrays, TREE_SETTINGS, image_path=True)[0]
-        if loop:
-            assert old[:15].all() and new[:15].all()  # the first leg: the other leg lies 1.6 mm away
+        np.testing.assert_allclose(sections.foreshortening[0, 5:-5], foreshortening, atol=0.03)
+        arc_rule = _overlaps(sections, arrays, TREE_SETTINGS)[0]
+        image_path = _overlaps(sections, arrays, TREE_SETTINGS, image_path=True)[0]
+        if case == "loop":
+            assert arc_rule[:15].all() and image_path[:15].all()  # the first leg: the other leg lies 1.6 mm away
+        elif case == "arc rule":
+            assert arc_rule.mean() > 0.8 and not image_path.any()
         else:
-            assert old.mean() > 0.8 and not new.any()
+            assert not arc_rule.any() and not image_path.any()
+
+
+def _flat_sections(arrays):
+    """Sections of a tree drawn in the image plane itself: uv = (x, y) mm, 1 px per mm."""
+    from angiohull.reconstruction.vessel_tree import _Sections
+
+    n = len(arrays.points)
+    tangents = arrays.tangents()[:, :2]
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    normal = np.column_stack([-tangents[:, 1], tangents[:, 0]])
+    ones, nan = np.ones((1, n)), np.full((1, n), np.nan)
+    return _Sections(found=np.ones((1, n), dtype=bool), width_px=nan, offset_px=nan, normal_px=normal[None],
+                     gradient=np.zeros((1, n, 3)), px_per_mm=ones, foreshortening=ones,
+                     uv=arrays.points[None, :, :2].copy())
+
+
+@pytest.mark.parametrize("angle_deg", [30, 50, 75])
+def test_a_run_is_spoiled_where_another_vessel_crosses_its_line_not_beside_it(angle_deg):
+    # drawn in the image (1 px per mm, margin 1.5 px), discs every 0.05 px: a trunk of radius 2
+    # along x, and a vessel of radius 1 crossing it at the origin at angle a. The vessel's discs,
+    # widened by the margin to 2.5, cover the trunk point x's normal line (x = const) from
+    # |x| tan a - 2.5 / cos a on; the trunk's run reaches 2 either side, so it is spoiled for
+    # |x| < (2 cos a + 2.5) / sin a (hand-worked), and in turn the vessel's point at distance s from
+    # the crossing, whose line meets the trunk's axis |s| / cos a away at a slant, where
+    # |s| < (1 cos a + 3.5) / sin a. A third vessel of radius 1 runs along y at x = 3, just beyond
+    # the end of a second trunk (x <= 0): its discs lie beside that trunk's normal lines (3 - x px
+    # along it, over the 2.5 reach), so no point of the second trunk is spoiled (with every disc
+    # within the two radii plus the margin counted, its last 1.5 px were); the second trunk's end
+    # cap, widened to 3.5, reaches the y-vessel's lines within 1 px of its points where
+    # |y| < sqrt(3.5^2 - 2^2) = 2.87.
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _overlaps
+
+    a = np.radians(angle_deg)
+    step = 0.05
+    trunk = _line((-30, 0, 0), (30, 0, 0), step)
+    vessel = _line(-25 * np.array([np.cos(a), np.sin(a), 0]), 25 * np.array([np.cos(a), np.sin(a), 0]), step)
+    arrays = _Arrays.of(VesselTree((Branch(trunk, 2.0, name="trunk"), Branch(vessel, 1.0, parent=0, parent_point=0, name="vessel"))))
+    spoiled = _overlaps(_flat_sections(arrays), arrays, TREE_SETTINGS)[0]
+    x = trunk[:, 0]
+    limit = (2 * np.cos(a) + 2.5) / np.sin(a)
+    clear = np.abs(np.abs(x) - limit) > 2 * step  # away from the boundary by the discs' spacing
+    np.testing.assert_array_equal(spoiled[: len(trunk)][clear], (np.abs(x) < limit)[clear])
+    s = np.linalg.norm(vessel[:, :2], axis=1)
+    limit = (1 * np.cos(a) + 3.5) / np.sin(a)
+    clear = np.abs(s - limit) > 2 * step
+    np.testing.assert_array_equal(spoiled[len(trunk):][clear], (s < limit)[clear])
+
+    short = _line((-20, 0, 0), (0, 0, 0), step)
+    beyond = _line((3, -15, 0), (3, 15, 0), step)
+    arrays = _Arrays.of(VesselTree((Branch(short, 2.0, name="trunk"), Branch(beyond, 1.0, parent=0, parent_point=0, name="beyond"))))
+    spoiled = _overlaps(_flat_sections(arrays), arrays, TREE_SETTINGS)[0]
+    assert not spoiled[: len(short)].any()
+    y = beyond[:, 1]
+    clear = np.abs(np.abs(y) - np.sqrt(3.5 ** 2 - 2 ** 2)) > 2 * step
+    np.testing.assert_array_equal(spoiled[len(short):][clear], (np.abs(y) < np.sqrt(3.5 ** 2 - 2 ** 2))[clear])
