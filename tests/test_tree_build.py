@@ -504,3 +504,60 @@ def test_a_run_is_spoiled_where_another_vessel_crosses_its_line_not_beside_it(an
     y = beyond[:, 1]
     clear = np.abs(np.abs(y) - np.sqrt(3.5 ** 2 - 2 ** 2)) > 2 * step
     np.testing.assert_array_equal(spoiled[len(short):][clear], (np.abs(y) < np.sqrt(3.5 ** 2 - 2 ** 2))[clear])
+
+
+def test_a_run_merged_on_one_side_is_read_from_its_clean_edge():
+    # drawn in the image (1 px per mm, margin 1.5 px): a trunk of radius 2 along x and a vessel of
+    # radius 1 beside it at y = 3.5, on the trunk's normal side (+y). The vessel's discs, widened to
+    # 2.5, reach the trunk's lines down to y = 1 (inside the trunk's half-width 2: spoiled) but not
+    # past its edge at y = -2: its right (+y) side is spoiled, its left edge clean; for the vessel,
+    # whose normal is +y too, the trunk lies on its left. Where a view shows the merged run from the
+    # trunk's left edge (-2) to the vessel's far edge (4.5), not found as the trunk's own run, the
+    # axis is read from the clean edge: -2 + 2 = 0 for the trunk, 4.5 - 1 = 3.5 for the vessel
+    # (relative to their projections: 0 and 0). A foreshortened view, or one whose clean edge was
+    # not found within the reach, tells nothing; a seen view gives its run's middle.
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _centre_targets, _overlaps
+
+    trunk = _line((-20, 0, 0), (20, 0, 0), 0.5)
+    beside = _line((-10, 3.5, 0), (10, 3.5, 0), 0.5)
+    arrays = _Arrays.of(VesselTree((Branch(trunk, 2.0, name="trunk"),
+                                    Branch(beside, 1.0, parent=0, parent_point=0, name="beside"))))
+    sections = _flat_sections(arrays)
+    spoiled, left, right = _overlaps(sections, arrays, TREE_SETTINGS, sides=True)
+    middle = np.abs(trunk[:, 0]) < 8  # trunk points alongside the vessel
+    assert spoiled[0, : len(trunk)][middle].all() and right[0, : len(trunk)][middle].all()
+    assert not left[0, : len(trunk)].any()
+    assert spoiled[0, len(trunk):].all() and left[0, len(trunk):].all() and not right[0, len(trunk):].any()
+
+    n = len(arrays.points)
+    edges = np.empty((1, n, 2))
+    edges[0, : len(trunk)] = (-2.0, 4.5)  # the trunk's run: its own left edge, the merged far edge
+    edges[0, len(trunk):] = (-2.0 - 3.5, 1.0)  # the vessel's run: the trunk's far edge, its own right edge
+    found = np.zeros((1, n), dtype=bool)
+    offset_px = np.full((1, n), np.nan)
+    merged = _replace_sections(sections, edges_px=edges, found=found, offset_px=offset_px)
+    seen = np.zeros((1, n), dtype=bool)
+    offset, known = _centre_targets(merged, arrays.radius, seen, left, right, TREE_SETTINGS)
+    alongside = np.concatenate([middle, np.ones(len(beside), dtype=bool)])
+    assert known[0, alongside].all()
+    np.testing.assert_allclose(offset[0, alongside], 0.0, atol=1e-12)
+
+    # a foreshortened view tells nothing; a clean edge not found within the reach neither
+    flat = _replace_sections(merged, foreshortening=np.full((1, n), 0.3))
+    assert not _centre_targets(flat, arrays.radius, seen, left, right, TREE_SETTINGS)[1].any()
+    lost = edges.copy()
+    lost[0, : len(trunk), 0] = np.nan
+    unknown = _centre_targets(_replace_sections(merged, edges_px=lost), arrays.radius, seen, left, right,
+                              TREE_SETTINGS)[1]
+    assert not unknown[0, : len(trunk)][middle].any()
+    # a seen view: the run's middle
+    both = _replace_sections(sections, edges_px=np.stack([np.full(n, -1.5), np.full(n, 2.5)], axis=1)[None],
+                             offset_px=np.full((1, n), 0.5))
+    offset, known = _centre_targets(both, arrays.radius, np.ones((1, n), dtype=bool), left, right, TREE_SETTINGS)
+    assert known.all() and np.allclose(offset, 0.5)
+
+
+def _replace_sections(sections, **fields):
+    from dataclasses import replace
+
+    return replace(sections, **fields)

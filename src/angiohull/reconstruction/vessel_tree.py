@@ -47,9 +47,27 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    bifurcation, where the other branch's first points overlap it in every view, or where vessels
    cross in every view) gets its radius interpolated along its branch from the points that are
    seen (on a branch with none, the smallest radius any view gives: an overlap only widens a run).
-   The point moves by the least-squares step that puts its projection on the middles of the
-   seeing views' runs (along each view's normal; the step along the 3D tangent is held at zero),
-   at most one radius per iteration, then the branches are smoothed again (``smoothing_mm / 2``).
+   The point moves by the least-squares step that puts its projection on the axis as each view
+   shows it (along each view's normal; the step along the 3D tangent is held at zero), at most one
+   radius per iteration, then the branches are smoothed again (``smoothing_mm / 2``). A view shows
+   the axis at the middle of its run where it sees the point, or where another vessel crosses the
+   run only within its silhouette (both edges still the vessel's own); and, where only one edge is
+   the vessel's own (another vessel's disc reaches past the other edge, or the run does not end
+   within the reach on that side: a vessel merged with another in that view, a point by a
+   junction), at that edge plus the projected radius towards the other side (since 2026-12-03;
+   before, such views gave nothing, and the points they were the only views of stayed where the
+   skeleton put them: on the authors' 48 studies, after the line rule above, a fifth of the tree
+   method's points were seen by no view and a quarter by one, 0.70 and 0.40 mm (median) from the
+   true axis against 0.18 mm with two. Paired, the tree method: 3 exact clinical views, 100
+   generated trees, Dice3D +0.60 ± 0.11, centerline -0.044 mm (98 of 100 nearer); 6 views
+   +0.02 ± 0.04, centerline -0.008 mm; 2 clinical views, 200 trees, exact +0.72 ± 0.14,
+   segmented +0.65 ± 0.21, branch recall +0.023 / +0.020; the authors' 48 studies 88.9 ->
+   89.6 %, +0.75 ± 0.26). After the last iteration the positions are smoothed once more
+   (``final_smoothing_mm``): every point now moves with its views' edges, whose sub-pixel noise
+   makes a polyline longer than its vessel (on the QCA benchmark's 60 trees in 3 views, branch
+   lengths within 1 % or 1 mm of the truth 0.657 without it, 0.709 with it, from exact masks;
+   0.537 and 0.628 from segmented angiograms; the centerline distance on 100 trees 0.110 and
+   0.111 mm).
    Before the last iteration, with three views or more, the tails of branches past their last
    child (stubs) that no view sees over ``max_unseen_share`` of their points are cut off (for
    these removals a branch's own points hide each other only where, besides the arc rule above,
@@ -153,6 +171,7 @@ class TreeSettings:
     point_step_mm: float = 0.5  # branch points every this much arc length
     smoothing_mm: float = 1.0  # Gaussian sigma of the positions along a branch, mm
     iterations: int = 3  # cross-section fits
+    final_smoothing_mm: float = 0.5  # Gaussian sigma of one more smoothing of the positions after the fits, mm
     profile_step_px: float = 0.5  # sampling step along a cross-section, px (edges interpolated between samples)
     min_foreshortening: float = 0.4  # a view sees a cross-section when the vessel is at most ~66 deg out of its plane
     radius_foreshortening_tolerance: float = 0.2  # radii from the seeing views foreshortened at most this more than the least
@@ -330,6 +349,7 @@ class _Sections:
     px_per_mm: np.ndarray  # (V, N) focal length / depth
     foreshortening: np.ndarray  # (V, N) |projected tangent| / px_per_mm
     uv: np.ndarray  # (V, N, 2)
+    edges_px: np.ndarray | None = None  # (V, N, 2) the run's two edges along the normal (nan where not found)
 
 
 # profiles of similar length are sampled together, each as long as its bin's reach (bins in steps of
@@ -341,7 +361,8 @@ def _runs(image: np.ndarray, uv: np.ndarray, normal: np.ndarray, reach: np.ndarr
           step_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The run of the mask through (or within ``_SEEK_PX`` of) each point along its normal, within
     ``reach`` px: ``(found, left edge, right edge)`` in px along the normal (edges at the 0.5
-    crossings of the bilinear mask)."""
+    crossings of the bilinear mask; an edge is nan where the run does not end within the reach on
+    that side, and ``found`` is both edges found)."""
     n = len(uv)
     half = int(np.ceil(reach.max() / step_px))
     s = step_px * np.arange(-half, half + 1)
@@ -356,21 +377,22 @@ def _runs(image: np.ndarray, uv: np.ndarray, normal: np.ndarray, reach: np.ndarr
     outside = ~inside
     left = np.where(outside & (index[None, :] < seed[:, None]), index[None, :], -1).max(axis=1)
     right = np.where(outside & (index[None, :] > seed[:, None]), index[None, :], len(s)).min(axis=1)
-    found &= (left >= 0) & (right < len(s))
-    found &= (s[np.clip(left, 0, None)] >= -reach) & (s[np.clip(right, None, len(s) - 1)] <= reach)
+    found_left = found & (left >= 0) & (s[np.clip(left, 0, None)] >= -reach)
+    found_right = found & (right < len(s)) & (s[np.clip(right, None, len(s) - 1)] <= reach)
     left_c, right_c = np.clip(left, 0, len(s) - 2), np.clip(right, 1, len(s) - 1)
     rows = np.arange(n)
     p_out, p_in = profile[rows, left_c], profile[rows, left_c + 1]
     left_edge = s[left_c] + (0.5 - p_out) / np.maximum(p_in - p_out, 1e-9) * step_px
     p_in, p_out = profile[rows, right_c - 1], profile[rows, right_c]
     right_edge = s[right_c - 1] + (p_in - 0.5) / np.maximum(p_in - p_out, 1e-9) * step_px
-    return found, left_edge, right_edge
+    return found_left & found_right, np.where(found_left, left_edge, np.nan), np.where(found_right, right_edge, np.nan)
 
 
 def _sections(points: np.ndarray, tangents: np.ndarray, radius: np.ndarray, projections: Sequence[Projection],
               images: Sequence[np.ndarray], step_px: float) -> _Sections:
     n = len(points)
-    out = {k: [] for k in ("found", "width_px", "offset_px", "normal_px", "gradient", "px_per_mm", "foreshortening", "uv")}
+    out = {k: [] for k in ("found", "width_px", "offset_px", "normal_px", "gradient", "px_per_mm", "foreshortening", "uv",
+                           "edges_px")}
     for projection, image in zip(projections, images):
         uv = projection.project(points)
         jac = projection.jacobian(points)
@@ -382,7 +404,7 @@ def _sections(points: np.ndarray, tangents: np.ndarray, radius: np.ndarray, proj
         normal = np.column_stack([-direction[:, 1], direction[:, 0]])
         # a run up to 2.5 radii + 4 px either side (the radius may still be the hull's, too wide)
         reach = np.clip(2.5 * radius * px_per_mm + 4.0, 6.0, _REACH_BINS_PX[-1])
-        found, left, right = np.zeros(n, dtype=bool), np.zeros(n), np.zeros(n)
+        found, left, right = np.zeros(n, dtype=bool), np.full(n, np.nan), np.full(n, np.nan)
         bins = np.searchsorted(_REACH_BINS_PX, reach)
         for b in np.unique(bins):
             sel = np.flatnonzero(bins == b)
@@ -395,10 +417,12 @@ def _sections(points: np.ndarray, tangents: np.ndarray, radius: np.ndarray, proj
         out["px_per_mm"].append(px_per_mm)
         out["foreshortening"].append(length / px_per_mm)
         out["uv"].append(uv)
+        out["edges_px"].append(np.column_stack([left, right]))
     return _Sections(**{k: np.stack(v) for k, v in out.items()})
 
 
-def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *, image_path: bool = False) -> np.ndarray:
+def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *, image_path: bool = False,
+              sides: bool = False):
     """(V, N) bool: in the view, the point's cross-section is spoiled by another point's disc: a
     point of another branch, or of the same branch farther along it than the two radii (a loop
     crossing itself), whose projected disc, widened by ``overlap_margin_px``, crosses the line the
@@ -423,6 +447,7 @@ def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *,
     radius = arrays.radius
     margin = settings.overlap_margin_px
     out = np.zeros((views, n), dtype=bool)
+    left, right = np.zeros((views, n), dtype=bool), np.zeros((views, n), dtype=bool)
     for k in range(views):
         rho = radius * sections.px_per_mm[k]
         pairs = cKDTree(sections.uv[k]).query_pairs(2.0 * float(rho.max()) + margin, output_type="ndarray")
@@ -442,13 +467,18 @@ def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *,
         i, j = i[hit], j[hit]
         du = np.take(sections.uv[k, :, 0], j) - np.take(sections.uv[k, :, 0], i)
         dv = np.take(sections.uv[k, :, 1], j) - np.take(sections.uv[k, :, 1], i)
-        for a, b in ((i, j), (j, i)):  # a's run, b's disc
+        for a, b, sign in ((i, j, 1.0), (j, i, -1.0)):  # a's run, b's disc
             nu, nv = np.take(sections.normal_px[k, :, 0], a), np.take(sections.normal_px[k, :, 1], a)
-            across, along = np.abs(nu * du + nv * dv), np.abs(nu * dv - nv * du)
+            across, along = sign * (nu * du + nv * dv), np.abs(nu * dv - nv * du)
             reach = np.take(rho, b) + margin
             chord = np.sqrt(np.maximum(reach * reach - along * along, 0.0))
-            out[k, a[(along < reach) & (across - chord < np.take(rho, a))]] = True
-    return out
+            rho_a = np.take(rho, a)
+            hit = (along < reach) & (np.abs(across) - chord < rho_a)
+            out[k, a[hit]] = True
+            if sides:  # the disc reaches past the run's edge on that side
+                left[k, a[hit & (across - chord < -rho_a)]] = True
+                right[k, a[hit & (across + chord > rho_a)]] = True
+    return (out, left, right) if sides else out
 
 
 def _seen(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *, image_path: bool = False) -> np.ndarray:
@@ -475,18 +505,38 @@ def _combine_radius(sections: _Sections, seen: np.ndarray, previous: np.ndarray,
     return np.maximum(out, _MIN_RADIUS_MM)
 
 
-def _centre_step(sections: _Sections, seen: np.ndarray, tangents: np.ndarray, radius: np.ndarray) -> np.ndarray:
-    """Least-squares move of every point onto the middles of its seen runs (tangent held)."""
+def _centre_targets(sections: _Sections, radius: np.ndarray, seen: np.ndarray, spoiled_left: np.ndarray,
+                    spoiled_right: np.ndarray, settings: TreeSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Where the axis projects, along each view's normal, and in which views that is known: (V, N)
+    offsets and bool. The middle of the run where the view sees the point, or where both of the
+    run's edges are the vessel's own (another vessel crosses it within its silhouette); one edge
+    plus the projected radius towards the other where only that edge is the vessel's own (the
+    other side merges with another vessel or runs past the reach)."""
+    left, right = sections.edges_px[..., 0], sections.edges_px[..., 1]
+    clear = sections.foreshortening >= settings.min_foreshortening
+    clean_left = clear & np.isfinite(left) & ~spoiled_left
+    clean_right = clear & np.isfinite(right) & ~spoiled_right
+    middle = seen | (clean_left & clean_right)
+    rho = radius[None, :] * sections.px_per_mm
+    offset = np.where(middle, sections.offset_px,
+                      np.where(clean_left, left + rho, np.where(clean_right, right - rho, 0.0)))
+    return offset, middle | clean_left | clean_right
+
+
+def _centre_step(sections: _Sections, offset: np.ndarray, known: np.ndarray, tangents: np.ndarray,
+                 radius: np.ndarray) -> np.ndarray:
+    """Least-squares move of every point onto its axis offsets in the views that know them (tangent
+    held), at most one radius."""
     g = sections.gradient  # (V, N, 3)
-    weight = seen.astype(np.float64)
-    c = np.where(seen, sections.offset_px, 0.0)
+    weight = known.astype(np.float64)
+    c = np.where(known, offset, 0.0)
     normal = np.einsum("vn,vni,vnj->nij", weight, g, g)
     rhs = np.einsum("vn,vni,vn->ni", weight, g, c)
     scale = np.einsum("vn,vni,vni->n", np.ones_like(weight), g, g) / max(1, g.shape[0])
     normal += (scale[:, None, None] * tangents[:, :, None] * tangents[:, None, :]
                + 1e-3 * scale[:, None, None] * np.eye(3)[None])
     step = np.linalg.solve(normal, rhs[..., None])[..., 0]
-    step[seen.sum(axis=0) == 0] = 0.0
+    step[known.sum(axis=0) == 0] = 0.0
     length = np.linalg.norm(step, axis=1)
     too_far = length > radius
     step[too_far] *= (radius[too_far] / length[too_far])[:, None]
@@ -991,14 +1041,17 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
             arrays, removed = arrays.without_unseen_leaves(visible, settings.max_unseen_share)
         # the cross-sections of the removals serve the fit when nothing was removed
         tangents, sections = measured[1:] if measured[0] is arrays else measure(arrays)
-        seen = _seen(sections, arrays, settings)
+        spoiled, spoiled_left, spoiled_right = _overlaps(sections, arrays, settings, sides=True)
+        seen = sections.found & ~spoiled & (sections.foreshortening >= settings.min_foreshortening)
         held = seen.sum(axis=0) == 0
         arrays.radius = _combine_radius(sections, seen, arrays.radius, settings.radius_foreshortening_tolerance)
         _interpolate_held(arrays, held)
-        arrays.points = arrays.points + _centre_step(sections, seen, tangents, arrays.radius)
+        offset, known = _centre_targets(sections, arrays.radius, seen, spoiled_left, spoiled_right, settings)
+        arrays.points = arrays.points + _centre_step(sections, offset, known, tangents, arrays.radius)
         for b in range(len(arrays.counts)):
             arrays.reattach(b)
         arrays.smooth(0.5 * settings.smoothing_mm, step)
+    arrays.smooth(settings.final_smoothing_mm, step)
     _smooth_radii(arrays, settings.radius_smoothing_mm, step)
     arrays, rerooted_mm = _rooted_at_ostium(arrays, settings, held)
     arrays, junctions_moved = _junction_on_axes(arrays, settings)
