@@ -454,6 +454,12 @@ def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *,
         if len(pairs) == 0:
             continue
         i, j = pairs[:, 0], pairs[:, 1]
+        # a disc that reaches a run's line within the point's radius lies within the two radii plus
+        # the margin of it: the pairs farther apart are none of the rules' business
+        du, dv = np.take(sections.uv[k, :, 0], j) - np.take(sections.uv[k, :, 0], i), \
+            np.take(sections.uv[k, :, 1], j) - np.take(sections.uv[k, :, 1], i)
+        near = np.flatnonzero(du * du + dv * dv < (np.take(rho, i) + np.take(rho, j) + margin) ** 2)
+        i, j, du, dv = i[near], j[near], du[near], dv[near]
         loop = np.abs(arc[i] - arc[j]) > radius[i] + radius[j] + settings.overlap_margin_mm
         if image_path:
             # along one branch: a loop crossing itself, where the image path between the two points
@@ -464,9 +470,7 @@ def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *,
             image_arc = np.concatenate([[0.0], np.cumsum(step)])
             loop &= np.abs(image_arc[i] - image_arc[j]) > rho[i] + rho[j] + margin
         hit = (owner[i] != owner[j]) | loop
-        i, j = i[hit], j[hit]
-        du = np.take(sections.uv[k, :, 0], j) - np.take(sections.uv[k, :, 0], i)
-        dv = np.take(sections.uv[k, :, 1], j) - np.take(sections.uv[k, :, 1], i)
+        i, j, du, dv = i[hit], j[hit], du[hit], dv[hit]
         for a, b, sign in ((i, j, 1.0), (j, i, -1.0)):  # a's run, b's disc
             nu, nv = np.take(sections.normal_px[k, :, 0], a), np.take(sections.normal_px[k, :, 1], a)
             across, along = sign * (nu * du + nv * dv), np.abs(nu * dv - nv * du)
@@ -481,11 +485,14 @@ def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *,
     return (out, left, right) if sides else out
 
 
-def _seen(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *, image_path: bool = False) -> np.ndarray:
+def _seen(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *, image_path: bool = False,
+          sides: bool = False):
     """(V, N) bool: the view measures the point's cross-section (a run found, no overlap, not too
-    foreshortened; module notes, step 3)."""
-    return (sections.found & ~_overlaps(sections, arrays, settings, image_path=image_path)
-            & (sections.foreshortening >= settings.min_foreshortening))
+    foreshortened; module notes, step 3); with ``sides`` also :func:`_overlaps`' two (V, N) bool of
+    the runs spoiled past their left and right edges."""
+    spoiled = _overlaps(sections, arrays, settings, image_path=image_path, sides=sides)
+    seen = sections.found & ~(spoiled[0] if sides else spoiled) & (sections.foreshortening >= settings.min_foreshortening)
+    return (seen, *spoiled[1:]) if sides else seen
 
 
 def _combine_radius(sections: _Sections, seen: np.ndarray, previous: np.ndarray,
@@ -1041,8 +1048,7 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
             arrays, removed = arrays.without_unseen_leaves(visible, settings.max_unseen_share)
         # the cross-sections of the removals serve the fit when nothing was removed
         tangents, sections = measured[1:] if measured[0] is arrays else measure(arrays)
-        spoiled, spoiled_left, spoiled_right = _overlaps(sections, arrays, settings, sides=True)
-        seen = sections.found & ~spoiled & (sections.foreshortening >= settings.min_foreshortening)
+        seen, spoiled_left, spoiled_right = _seen(sections, arrays, settings, sides=True)
         held = seen.sum(axis=0) == 0
         arrays.radius = _combine_radius(sections, seen, arrays.radius, settings.radius_foreshortening_tolerance)
         _interpolate_held(arrays, held)
