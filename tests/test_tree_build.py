@@ -375,6 +375,49 @@ def test_straight_tips_lays_hooked_leaf_ends_and_the_roots_start_on_their_lines(
         np.testing.assert_array_equal(arrays.points[arrays.span(2)], before[arrays.span(2)])  # no hook
 
 
+def test_a_thick_tips_tangent_is_its_chord_over_a_radius_not_its_hook():
+    # a tube of radius 5 mm along x to x = 18.5, then hooked at 45 degrees over its last two points
+    # ((19, 0.5), (19.5, 1)): the tip's tangent is the chord from 5 mm of arc before it, at
+    # (19.914 - 5, 0) = (14.914, 0) on the straight part, to the tip: (4.586, 1) / |.|, 12.3 degrees
+    # off the axis (the neighbours' gradient: 45 degrees); a point 10 mm from both ends: the axis
+    from angiohull.reconstruction.vessel_tree import _Arrays
+
+    points = np.vstack([_line((0, 0, 0), (18.5, 0, 0)), [[19.0, 0.5, 0.0], [19.5, 1.0, 0.0]]])
+    arrays = _Arrays.of(VesselTree((Branch(points, 5.0, name="thick"),)))
+    tangents = arrays.tangents()
+    end_arc = 18.5 + 2 * np.sqrt(0.5)
+    chord = np.array([19.5 - (end_arc - 5.0), 1.0, 0.0])
+    np.testing.assert_allclose(tangents[-1], chord / np.linalg.norm(chord), atol=1e-12)
+    np.testing.assert_allclose(tangents[20], (1.0, 0.0, 0.0), atol=1e-12)
+    # a thin vessel's chord is at least 0.5 mm either way: its neighbours at 0.5 mm
+    thin = _Arrays.of(VesselTree((Branch(points, 0.1, name="thin"),)))
+    np.testing.assert_allclose(thin.tangents()[-1], (np.sqrt(0.5), np.sqrt(0.5), 0.0), atol=1e-12)
+
+
+def test_a_narrowing_end_cap_is_straightened_over_the_vessels_radius():
+    # a tube of radius 4 mm along x whose cross-sections narrow to 0.5 mm over its last 3 mm (an
+    # end cap), hooked off in z at a slope of 3/4 over its last 3 mm (3.75 mm of arc): the stretch laid
+    # on the line is 1.5 x 2.83 = 4.25 mm of arc (2.83 mm: the largest radius within the last 3 mm of
+    # arc), the whole hook, and each of its points keeps its arc length from the straight part, so
+    # the tip ends at x = 37 + 3.75 = 40.75 on the axis. (With the median radius, 1.67 mm, only the last
+    # 2.5 mm moved, onto a line fitted partly to the hook.)
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _straight_tips
+
+    line = _line((0, 0, 0), (40, 0, 0))
+    from_tip = 40.0 - line[:, 0]
+    points = line.copy()
+    hook = from_tip < 3.0
+    points[hook, 2] = 0.75 * (3.0 - from_tip[hook])
+    radius = np.where(from_tip < 3.0, 0.5 + 3.5 * from_tip / 3.0, 4.0)
+    arrays = _Arrays.of(VesselTree((Branch(line[:4], 4.0, name="root"),
+                                    Branch(points, radius, parent=0, parent_point=3, name="capped"))))
+    assert _straight_tips(arrays, TREE_SETTINGS) == 1
+    end = arrays.points[arrays.span(1)]
+    np.testing.assert_allclose(end[:, 1:], 0.0, atol=1e-9)
+    np.testing.assert_allclose(end[hook, 0], 37.0 + 1.25 * (line[hook, 0] - 37.0), atol=1e-9)
+    np.testing.assert_array_equal(end[~hook], line[~hook])
+
+
 def test_unseen_stubs_are_cut_where_no_view_sees_them():
     # a trunk of 61 points with a side branch from point 40 and a second branch from point 10: the
     # trunk's tail past point 40 (20 points) is its stub. Hand-worked: no view sees 15 of its 20

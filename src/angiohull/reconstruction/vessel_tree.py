@@ -19,7 +19,8 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    (Gaussian, ``smoothing_mm``), children re-attached to their parent's smoothed point.
 3. **Cross-sections in the views** (``iterations`` times). At each point, in each view, the mask
    is sampled (bilinearly, every ``profile_step_px``) along the normal of the projected
-   centerline; the run of vessel pixels through the projection gives two sub-pixel edges (the
+   centerline (the tangent: the chord of the branch from one radius, at least 0.5 mm, behind the
+   point to one radius ahead; a vessel bends little within its radius); the run of vessel pixels through the projection gives two sub-pixel edges (the
    0.5 crossings, half-way between a vessel pixel centre and a background one, as the pixel-centre
    rule of the masks puts them), hence a width ``w`` and the offset ``c`` of its middle from the
    projection. A view *sees* the point's cross-section when
@@ -119,7 +120,8 @@ views) into a :class:`~angiohull.tree.VesselTree`:
 6. **Ends.** Near a tip the cross-sections are the end cap's, not a tube's, and the skeleton's
    path ends where the hull's excess beyond the cap is farthest: bent off the axis (the root's
    start, at the left main's ostium, 2-3 mm to the side on 4 of 8 generated left trees). So each
-   tip's last ``tip_straight_radii`` radii are first laid on the least-squares line of the
+   tip's last ``tip_straight_radii`` radii (the largest radius within ``junction_fit_mm`` of the
+   tip: an end cap's cross-sections narrow towards it) are first laid on the least-squares line of the
    ``junction_fit_mm`` of its branch before them, when the tip lies farther than
    ``tip_hook_radii`` radii from that line (only the ends of branches without children, and the
    root's start unless a child leaves from the stretch; a short
@@ -255,14 +257,23 @@ class _Arrays:
         parent = self.parents[b]
         return None if parent is None else int(self.starts[parent] + self.parent_points[b])
 
-    def tangents(self) -> np.ndarray:
+    def tangents(self, min_half_chord_mm: float = 0.5) -> np.ndarray:
+        """(N, 3) unit tangents: each point's the chord of its branch from one radius (at least
+        ``min_half_chord_mm``) behind it to one radius ahead (clipped at the branch's ends). A tube
+        bends little within its radius, and the cross-section is read across it: a tangent from the
+        neighbours 0.5 mm away followed the skeleton's wiggles, and at the end of a thick vessel its
+        bend towards a corner of the hull's cap put the normal along the vessel (the XCAT vessel,
+        r ~ 10 mm: docs/vessel-tree.md, step 3)."""
         out = np.empty_like(self.points)
         for b in range(len(self.counts)):
-            p = self.points[self.span(b)]
+            s = self.span(b)
+            p = self.points[s]
             step = np.linalg.norm(np.diff(p, axis=0), axis=1)
             arc = np.concatenate([[0.0], np.cumsum(np.maximum(step, 1e-12))])
-            g = np.gradient(p, arc, axis=0)
-            out[self.span(b)] = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
+            half = np.maximum(self.radius[s], min_half_chord_mm)
+            ahead, behind = np.minimum(arc + half, arc[-1]), np.maximum(arc - half, 0.0)
+            g = np.column_stack([np.interp(ahead, arc, p[:, i]) - np.interp(behind, arc, p[:, i]) for i in range(3)])
+            out[s] = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
         return out
 
     def smooth(self, sigma_mm: float, step_mm: float) -> None:
@@ -788,7 +799,10 @@ def _straight_tips(arrays: _Arrays, settings: TreeSettings) -> int:
             points = arrays.points[span][::-1] if not at_start else arrays.points[span]
             radius = arrays.radius[span][::-1] if not at_start else arrays.radius[span]
             arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-            tip_radius = float(np.median(radius[arc <= fit]))
+            # the vessel's radius: the largest within the stretch (an end cap's cross-sections narrow
+            # to nothing towards the tip, and their median straightened a thick vessel's hook over a
+            # third of it)
+            tip_radius = float(np.max(radius[arc <= fit]))
             cap = settings.tip_straight_radii * tip_radius
             line = np.flatnonzero((arc >= cap) & (arc <= cap + fit))
             near = np.flatnonzero(arc < cap)
