@@ -20,10 +20,11 @@ views) into a :class:`~angiohull.tree.VesselTree`:
 3. **Cross-sections in the views** (``iterations`` times). At each point, in each view, the mask
    is sampled (bilinearly, every ``profile_step_px``) along the normal of the projected
    centerline (the tangent: the chord of the branch from one radius, at least 0.5 mm, behind the
-   point to one radius ahead; a vessel bends little within its radius); the run of vessel pixels through the projection gives two sub-pixel edges (the
-   0.5 crossings, half-way between a vessel pixel centre and a background one, as the pixel-centre
-   rule of the masks puts them), hence a width ``w`` and the offset ``c`` of its middle from the
-   projection. A view *sees* the point's cross-section when
+   point to one radius ahead; a vessel bends little within its radius); the run of vessel pixels
+   through the projection gives two sub-pixel edges (the 0.5 crossings, half-way between a vessel
+   pixel centre and a background one, as the pixel-centre rule of the masks puts them), hence a
+   width ``w`` and the offset ``c`` of its middle from the projection. A view *sees* the point's
+   cross-section when
    - the run exists (the projection lies on the mask or within 2 px of it, and the run ends
      inside the profile),
    - the vessel is not foreshortened there (the projected tangent is at least
@@ -258,7 +259,7 @@ class _Arrays:
         return None if parent is None else int(self.starts[parent] + self.parent_points[b])
 
     def tangents(self, min_half_chord_mm: float = 0.5) -> np.ndarray:
-        """(N, 3) unit tangents: each point's the chord of its branch from one radius (at least
+        """(N, 3) unit tangents: at each point, the chord of its branch from one radius (at least
         ``min_half_chord_mm``) behind it to one radius ahead (clipped at the branch's ends). A tube
         bends little within its radius, and the cross-section is read across it: a tangent from the
         neighbours 0.5 mm away followed the skeleton's wiggles, and at the end of a thick vessel its
