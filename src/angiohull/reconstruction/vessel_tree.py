@@ -118,6 +118,9 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    ``junction_max_move_mm`` of the skeleton's junction, the child starts there, straight to its
    clear start (the radius there held over the straight part; no view sees a cross-section where
    the vessels merge). Same 24 trees: median junction error 0.86 mm instead of 1.90 mm.
+   The clear start lies where the axes are the two radii minus a quarter millimetre apart
+   (``junction_margin_mm`` = -0.25; 2026-12-04, +0.5 before): a side branch curves as it leaves,
+   and the farther out the line is read, the more that curve tilts it (notes in docs/vessel-tree.md).
 6. **Ends.** Near a tip the cross-sections are the end cap's, not a tube's, and the skeleton's
    path ends where the hull's excess beyond the cap is farthest: bent off the axis (the root's
    start, at the left main's ostium, 2-3 mm to the side on 4 of 8 generated left trees). So each
@@ -188,7 +191,8 @@ class TreeSettings:
     ostium_junction_mm: float = 5.0  # ... and farther than this from where branches meet
     reroot_mm: float = 5.0  # ... and the tree is rooted there when that lies farther than this from its root
     max_bridge_mm: float = 80.0  # longest path through the support hull that joins a part to the tree
-    junction_margin_mm: float = 0.5  # a child is clear of its parent where their axes lie the two radii plus this apart
+    junction_margin_mm: float = -0.25  # a child is clear of its parent where their axes lie the two radii plus this apart
+    # (negative: the child's cross-section still reaches this far into the parent's; see the notes, step 5)
     junction_fit_mm: float = 3.0  # the child's axis: the line through this much of it from where it is clear
     junction_max_miss_radii: float = 1.0  # ... which must pass the parent's axis within this many parent radii,
     junction_min_angle_deg: float = 15.0  # ... cross it at this angle or more,
