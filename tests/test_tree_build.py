@@ -132,7 +132,6 @@ def test_a_side_branch_starts_where_its_axis_meets_the_trunk(angle_deg):
     assert np.degrees(np.arccos(min(cosine, 1.0))) < 5.0
 
 
-
 @pytest.mark.parametrize("angle_deg", [30, 40])
 def test_a_shallow_side_branch_is_read_near_the_trunk(angle_deg):
     # a side branch (radius 1.3 mm) leaving a trunk (2.0 mm) at 30 or 40 degrees is clear of the
@@ -144,6 +143,7 @@ def test_a_shallow_side_branch_is_read_near_the_trunk(angle_deg):
     distances = [np.linalg.norm(np.array(f.position_mm) - junction) for f in tree.bifurcations
                  if min(tree.branches[c].length_mm for c in f.children) >= 5.0]
     assert min(distances) < 0.4
+
 
 def test_a_short_trunk_keeps_its_start_and_direction_into_a_bifurcation():
     # a left main of 9 mm (radius 2.2 mm) splitting into two daughters: the root starts at the
