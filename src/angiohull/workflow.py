@@ -250,6 +250,7 @@ def tree_summary(tree: VesselTree | None, build: Any = None, error: str | None =
             "points_no_view_sees": build.unseen_points, "unseen_leaves_removed": build.unseen_leaves_removed,
             "unseen_stub_points_removed": build.unseen_stub_points_removed,
             "fold_points_reread": build.fold_points_reread,
+            "unseen_head_points_removed": build.unseen_head_points_removed,
             "tips_moved_mm": list(build.tips_moved_mm), "root_moved_to_ostium_mm": build.rerooted_mm,
             "junctions_moved_mm": list(build.junctions_moved_mm),
             "timings_s": dict(build.timings_s),
