@@ -507,6 +507,40 @@ def test_the_roots_unseen_head_is_cut_unless_a_child_forks_beside_it():
     assert arrays_with((-1, 1.2, 0)).without_unseen_head(seen, 0.75, fork_deg=45.0)[1] == 20
 
 
+def test_a_root_cut_to_its_junction_keeps_its_unseen_tail_and_the_fit_runs():
+    # the root's head cut, its only child leaves its first point; no view sees the rest of it
+    # either. Cutting that as a stub left a root of one point, without a tangent, and the centre
+    # step's least squares were singular (the vessel-tree benchmark's generated rca 23, paper
+    # preset, crashed). The tail stays; and a point without a tangent that no view knows solves
+    # and stays where it is.
+    from angiohull.reconstruction.vessel_tree import _Arrays, _centre_step, _Sections
+
+    root = _line((0, 0, 0), (30, 0, 0))
+    child = _line(root[0], root[0] + (0, 10, 0))
+    arrays = _Arrays.of(VesselTree((Branch(root, 1.0, name="root"), Branch(child, 0.8, parent=0, parent_point=0))))
+    seen = np.ones((2, len(arrays.points)), dtype=bool)
+    seen[:, :len(root)] = False
+    same, count = arrays.without_unseen_stubs(seen, 0.75)
+    assert count == 0 and same is arrays
+    n = 3
+    zeros = np.zeros((2, n))
+    sections = _Sections(found=zeros.astype(bool), width_px=zeros, offset_px=zeros, normal_px=np.zeros((2, n, 2)),
+                         gradient=np.zeros((2, n, 3)), px_per_mm=zeros + 4.0, foreshortening=zeros + 1.0,
+                         uv=np.zeros((2, n, 2)))
+    known = np.zeros((2, n), dtype=bool)
+    sections.gradient[:, 1:] = [[1.0, 0.0, 0.0]]
+    known[0, 1:] = True
+    offset = np.where(known, 2.0, 0.0)
+    tangents = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    step = _centre_step(sections, offset, known, tangents, np.full(n, 5.0))
+    np.testing.assert_array_equal(step[0], 0.0)
+    # the known points: g = (1, 0, 0) in both views, known in one, offset 2 px -> normal equation
+    # (1 + 1e-3 s) x = 2 with s = the mean |g|^2 over the views = 1 (the tangent, z, is held;
+    # y has only the 1e-3 s term and no right-hand side): x = 2 / 1.001
+    np.testing.assert_allclose(step[1:, 0], 2.0 / 1.001, rtol=1e-12)
+    np.testing.assert_allclose(step[1:, 1:], 0.0, atol=1e-12)
+
+
 def test_a_phantom_head_no_view_sees_no_longer_starts_the_root(peer_synthetic_dir):
     # the authors' perpendicular_moderate_001, tree method: the skeleton's path started on a
     # phantom 18 mm long that no view sees, 10 mm from the true vessel, as the root's head (no

@@ -353,8 +353,8 @@ class _Arrays:
         keep = np.ones(len(self.points), dtype=bool)
         counts = self.counts.copy()
         for b, j in enumerate(last):
-            if j is None or j >= self.counts[b] - 1:
-                continue
+            if j is None or j == 0 or j >= self.counts[b] - 1:
+                continue  # (a child at the first point: the branch would be that point alone)
             tail = slice(int(self.starts[b] + j + 1), int(self.starts[b] + self.counts[b]))
             if unseen[tail].mean() >= share:
                 keep[tail] = False
@@ -631,8 +631,10 @@ def _centre_step(sections: _Sections, offset: np.ndarray, known: np.ndarray, tan
     scale = np.einsum("vn,vni,vni->n", np.ones_like(weight), g, g) / max(1, g.shape[0])
     normal += (scale[:, None, None] * tangents[:, :, None] * tangents[:, None, :]
                + 1e-3 * scale[:, None, None] * np.eye(3)[None])
+    unknown = known.sum(axis=0) == 0
+    normal[unknown] = np.eye(3)  # (no view knows them: they stay, and a point without a tangent solves too)
     step = np.linalg.solve(normal, rhs[..., None])[..., 0]
-    step[known.sum(axis=0) == 0] = 0.0
+    step[unknown] = 0.0
     length = np.linalg.norm(step, axis=1)
     too_far = length > radius
     step[too_far] *= (radius[too_far] / length[too_far])[:, None]
