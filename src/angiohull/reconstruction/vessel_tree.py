@@ -82,10 +82,12 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    way: the skeleton's path starts at a tip, often a phantom piece or a stub no view sees, and as
    part of the root it is no leaf (on the authors' ``perpendicular_moderate_001`` a phantom of
    18 mm, 10 mm from the true vessel, started the root and kept a fat tube there: Dice3D 87.1 %,
-   92.0 % without it, the root then everywhere within 2.2 mm of the true centerlines). Unless a child leaves that junction within ``head_fork_deg`` of the head
-   (chords over 3 mm): the skeleton split a vessel's end into two prongs, which hide each other
-   in every view (cut, the true ostium went on 3 of the 48 studies). Then leaf branches that no view sees over that share are removed, repeatedly (spurs,
-   stubs at a junction, phantom pieces the hull kept where vessels cross in every view). With two
+   92.0 % without it, the root then everywhere within 2.2 mm of the true centerlines). Unless a
+   child leaves that junction within ``head_fork_deg`` of the head (chords over 3 mm): the
+   skeleton split a vessel's end into two prongs, which hide each other in every view (cut, the
+   true ostium went on 3 of the 48 studies). Then leaf branches that no view sees over that share
+   are removed, repeatedly (spurs, stubs at a junction, phantom pieces the hull kept where vessels
+   cross in every view). With two
    views a phantom and the true branch it mirrors overlap each other in both views, nothing tells
    them apart, and nothing is removed.
 4. **Root.** The skeleton's root is its widest tip by the voxels' depth, which the occupancy
@@ -245,7 +247,7 @@ class TreeBuild:
     timings_s: dict[str, float]
     unseen_stub_points_removed: int = 0  # points of branch tails past the last child that no view saw, cut off
     fold_points_reread: int = 0  # points at or beside a fold whose radii were interpolated from the points beyond
-    unseen_head_points_removed: int = 0  # points of the root's head (before its first junction) that no view saw, cut off
+    unseen_head_points_removed: int = 0  # points of the root's head (before its first junction) no view saw, cut
 
 
 # -- branch arrays -----------------------------------------------------------------------------
