@@ -541,6 +541,27 @@ def test_a_root_cut_to_its_junction_keeps_its_unseen_tail_and_the_fit_runs():
     np.testing.assert_allclose(step[1:, 1:], 0.0, atol=1e-12)
 
 
+def test_repeated_points_dropped_from_a_parent_keep_its_childrens_junctions():
+    # a parent of 6 points whose 3rd and 4th coincide: the tree keeps 5. A child leaving its last
+    # point (index 5) leaves point 4 of the kept ones, a child leaving the repeat (index 3) leaves
+    # point 2, at the same place; before, their indices were kept as they were, and the first
+    # pointed past the parent's end (a TreeError: a generated rca tree, seed 9360, three views,
+    # the paper preset, with corrupted masks, failed to reconstruct).
+    from angiohull.reconstruction.vessel_tree import _Arrays
+
+    parent = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [2, 0, 0], [3, 0, 0], [4, 0, 0]], dtype=float)
+    at_end = _line(parent[5], parent[5] + (0, 3, 0))
+    at_repeat = _line(parent[3], parent[3] + (0, 0, 3))
+    counts = np.array([6, len(at_end), len(at_repeat)])
+    arrays = _Arrays(np.concatenate([parent, at_end, at_repeat]), np.ones(counts.sum()), np.cumsum(counts) - counts,
+                     counts, [None, 0, 0], [None, 5, 3], ["parent", "at_end", "at_repeat"])
+    tree = arrays.tree()
+    assert tree.branches[0].n_points == 5
+    assert [b.parent_point for b in tree.branches[1:]] == [4, 2]
+    for child in tree.branches[1:]:
+        np.testing.assert_array_equal(tree.branches[0].points_mm[child.parent_point], child.points_mm[0])
+
+
 def test_a_phantom_head_no_view_sees_no_longer_starts_the_root(peer_synthetic_dir):
     # the authors' perpendicular_moderate_001, tree method: the skeleton's path started on a
     # phantom 18 mm long that no view sees, 10 mm from the true vessel, as the root's head (no

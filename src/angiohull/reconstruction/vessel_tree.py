@@ -418,12 +418,21 @@ class _Arrays:
         return arrays, int((~alive).sum())
 
     def tree(self) -> VesselTree:
+        """The tree, without a branch's repeated consecutive points (a child that leaves a dropped
+        repeat leaves the kept point at the same place: the junction indices follow)."""
+        kept_index = []
+        for b in range(len(self.counts)):
+            points = self.points[self.span(b)]
+            keep = np.concatenate([[True], np.linalg.norm(np.diff(points, axis=0), axis=1) > 1e-9])
+            kept_index.append((keep, np.cumsum(keep) - 1))
         branches = []
         for b in range(len(self.counts)):
             s = self.span(b)
-            points, radius = self.points[s], self.radius[s]
-            keep = np.concatenate([[True], np.linalg.norm(np.diff(points, axis=0), axis=1) > 1e-9])
-            branches.append(Branch(points[keep], radius[keep], self.parents[b], self.parent_points[b], self.names[b]))
+            keep = kept_index[b][0]
+            parent, at = self.parents[b], self.parent_points[b]
+            if parent is not None:
+                at = int(kept_index[parent][1][at])
+            branches.append(Branch(self.points[s][keep], self.radius[s][keep], parent, at, self.names[b]))
         return VesselTree(tuple(branches))
 
 
