@@ -411,6 +411,84 @@ def test_a_contradicted_stretch_that_true_vessels_cover_is_marked_and_its_uncove
     assert marked[phantom].mean() > 0.5 and not marked[phantom][-15:].any()  # the tail's last 7 mm are nobody's
 
 
+def _phantom_carrying_a_vessel(twig=False):
+    """The Y with its mirror phantom, and a true vessel (40 mm) leaving the phantom's end: the
+    views' mismatch ran on into a vessel both show; with ``twig``, a 10 mm vessel leaves the
+    second branch's end too. Returns the tree, the views, and the true vessels (the Y and the
+    others) for the own matchings."""
+    tree, projections = _with_mirror_phantom()
+    end = tree.branches[2].points_mm[-1]
+    carried = _line(end, end + np.array([-5.0, 25.0, 30.0]))
+    more = [Branch(carried, 1.0, parent=2, parent_point=tree.branches[2].n_points - 1, name="carried")]
+    if twig:
+        end = tree.branches[1].points_mm[-1]
+        more.append(Branch(_line(end, end + np.array([0.0, -6.0, 8.0])), 0.8, parent=1,
+                           parent_point=tree.branches[1].n_points - 1, name="twig"))
+    full = VesselTree(tree.branches + tuple(more))
+    truth = VesselTree(_y().branches + tuple(Branch(b.points_mm, b.radius_mm, parent=0, parent_point=0, name=b.name)
+                                             for b in more))
+    return full, projections, truth
+
+
+def _inner_by_brute_force(tree, projections, own, nearest, tolerance_mm, share, explained, reach_radii):
+    points, radius, owner = tree.points()
+    reproduced = _reproduced_by_brute_force(tree, projections, own, nearest, tolerance_mm)
+    parents = {b.parent for b in tree.branches[1:]}
+    marked = np.zeros(len(points), dtype=bool)
+    for b in range(1, tree.n_branches):
+        mine = owner == b
+        if b not in parents or not reproduced[mine].mean() < share:
+            continue
+        shares = []
+        for projection in projections:
+            uv = projection.project(points)
+            rho = radius * max(projection.focal_lengths_px) / projection.depth_mm(points) + 0.5
+            others = ~mine & reproduced
+            hits = [np.any(np.linalg.norm(uv[others] - uv[k], axis=1) <= rho[others] + reach_radii * rho[k])
+                    for k in np.flatnonzero(mine)]
+            shares.append(np.mean(hits))
+        marked[mine] = min(shares) >= explained
+    return marked
+
+
+@pytest.mark.parametrize("twig, lying, share, explained", [(False, (), 0.3, 0.3), (True, (), 0.3, 0.3),
+                                                         (True, (1,), 0.3, 0.3), (True, (1,), 0.5, 0.05),
+                                                         (False, (), 0.5, 0.9), (True, (2,), 1.0, 0.0)])
+def test_unreproduced_inner_branches_match_a_branch_by_branch_reference(twig, lying, share, explained):
+    from angiohull.reconstruction.model import unreproduced_inner_branches
+
+    tree, projections, truth = _phantom_carrying_a_vessel(twig)
+    own, nearest = _own_matchings(truth, projections, lying=lying)
+    np.testing.assert_array_equal(
+        unreproduced_inner_branches(tree, projections, own, nearest, tolerance_mm=2.0, share=share,
+                                    explained=explained, reach_radii=0.5),
+        _inner_by_brute_force(tree, projections, own, nearest, 2.0, share, explained, 0.5))
+
+
+def test_a_phantom_that_carries_a_true_vessel_is_taken_out_alone():
+    from angiohull.reconstruction.model import (prune_explained_branches, prune_unreproduced_branches,
+                                                reproduced_points, unreproduced_inner_branches)
+
+    tree, projections, truth = _phantom_carrying_a_vessel()
+    own, nearest = _own_matchings(truth, projections)
+    owner = tree.points()[2]
+    reproduced = reproduced_points(tree, projections, own, nearest, 2.0)
+    assert reproduced[owner == 2].mean() < 0.3 and reproduced[owner != 2].all()
+    # with the vessel it carries, the phantom's subtree is reproduced enough, and nothing else shows
+    # the carried vessel: both subtree rules keep the two
+    assert prune_explained_branches(tree, projections, 0.9, 0.5)[1] == 0
+    assert prune_unreproduced_branches(tree, projections, own, nearest, tolerance_mm=2.0, share=0.3, explained=0.3,
+                                       reach_radii=0.5)[1] == 0
+    marked = unreproduced_inner_branches(tree, projections, own, nearest, tolerance_mm=2.0, share=0.3,
+                                         explained=0.3, reach_radii=0.5)
+    np.testing.assert_array_equal(marked, owner == 2)  # the phantom, all of it, and nothing else
+    # without the vessel it carries the phantom is a leaf: the subtree rule's, not this one's
+    leaf, projections = _with_mirror_phantom()
+    own, nearest = _own_matchings(_y(), projections)
+    assert not unreproduced_inner_branches(leaf, projections, own, nearest, tolerance_mm=2.0, share=0.3,
+                                           explained=0.3, reach_radii=0.5).any()
+
+
 # -- named cases -------------------------------------------------------------------------------
 def _helix():
     t = np.linspace(0, 3 * np.pi, 300)
@@ -543,7 +621,8 @@ def test_the_report_of_a_tree_reconstruction_names_its_pairs_prunings_and_stages
                  "--no-centerlines", "-q"]) == 0
     block = json.loads((out / "report.json").read_text())["tree_method"]
     assert block["pairs"] == [["view0", "view1"], ["view1", "view0"]]
-    assert set(block["branches_removed"]) == {"explained_by_the_others", "not_reproduced_by_the_matchings"}
+    assert set(block["branches_removed"]) == {"explained_by_the_others", "not_reproduced_by_the_matchings",
+                                              "carrying_others_not_reproduced"}
     assert all(isinstance(n, int) and n >= 0 for n in block["branches_removed"].values())
     assert isinstance(block["contradicted_stretch_points_removed"], int)
     assert set(block["timings_s"]) >= {"centerlines_2d", "correspondence", "tubes", "tree", "lumen"}

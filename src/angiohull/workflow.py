@@ -330,7 +330,8 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
             "matched_share": [float(x) for x in build.matched_share],
             "skeleton_pixels": dict(zip(result.view_names, (int(n) for n in build.skeleton_pixels))),
             "branches_removed": {"explained_by_the_others": int(build.explained_removed),
-                                 "not_reproduced_by_the_matchings": int(build.unreproduced_removed)},
+                                 "not_reproduced_by_the_matchings": int(build.unreproduced_removed),
+                                 "carrying_others_not_reproduced": int(build.inner_removed)},
             "contradicted_stretch_points_removed": int(build.stretch_points_removed),
             "timings_s": {k: float(v) for k, v in build.timings_s.items()},
         }

@@ -33,7 +33,10 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    reproduced goes, the least reproduced first. Last, the stretches inside branches: runs of at
    least ``stretch_min_mm`` of points that the matchings contradict and that reproduced points
    farther than ``stretch_apart_mm`` cover in every view are taken out of the tubes, and the
-   tree is fitted and pruned again from the rest (pieces joined through the hull).
+   tree is fitted and pruned again from the rest (pieces joined through the hull), and with them
+   every branch that carries others whose own points are reproduced less than ``reproduced_share``
+   and covered by reproduced points of the other branches at least ``unreproduced_explained`` in
+   every view (a phantom that a true branch it carries keeps reproduced enough as a subtree).
 5. **Lumen points**: the lattice points inside the fitted tree's tubes.
 
 Arrays and projections in, points and a tree out; nothing here reads files.
@@ -59,7 +62,8 @@ from .tubes import lattice_points_in_tubes
 
 __all__ = ["ModelSettings", "MODEL_SETTINGS", "ModelBuild", "model_tree", "centerline_graph", "CenterlineGraph2D",
            "MatchSettings", "lattice_points_in_tubes", "explained_shares", "prune_explained_branches",
-           "reproduced_points", "prune_unreproduced_branches", "covered_points", "contradicted_stretches"]
+           "reproduced_points", "prune_unreproduced_branches", "unreproduced_inner_branches", "covered_points",
+           "contradicted_stretches"]
 
 
 @dataclass(frozen=True)
@@ -98,6 +102,7 @@ class ModelBuild:
     timings_s: dict[str, float]
     unreproduced_removed: int = 0  # branches removed because the views' own matchings do not reproduce them
     stretch_points_removed: int = 0  # points of contradicted, covered stretches inside branches (tree built again)
+    inner_removed: int = 0  # branches with children taken out of the tubes as unreproduced (tree built again)
 
 
 def _viewing_direction(projection: Projection) -> np.ndarray:
@@ -175,20 +180,27 @@ def explained_shares(tree: VesselTree, projections: Sequence[Projection], reach_
     radius plus half a pixel; the point is covered when its projection lies within the disc's
     radius of a point outside the subtree plus ``reach_radii`` times its own (0: its centre inside
     the other disc; 0.5: the two discs overlap by at least half its radius; 1: they touch)."""
-    points, radius, owner = tree.points()
-    subtrees = _subtrees(tree)
-    inside = [np.isin(owner, members) for members in subtrees]  # (B) per point: in the branch's subtree
-    counts = np.array([np.count_nonzero(m) for m in inside])
-    out = np.zeros((tree.n_branches, len(projections)))
+    owner = tree.points()[2]
+    return _covered_shares(tree, projections, reach_radii, [np.isin(owner, members) for members in _subtrees(tree)])
+
+
+def _covered_shares(tree: VesselTree, projections: Sequence[Projection], reach_radii: float,
+                    groups: Sequence[np.ndarray], by: np.ndarray | None = None) -> np.ndarray:
+    """(G, V): per group of points ((N,) bool over ``tree.points()``) and view, the share of the
+    group's points that points outside it cover there (:func:`explained_shares`); with ``by``
+    ((N,) bool), only those points cover."""
+    points, radius, _ = tree.points()
+    by = np.ones(len(points), dtype=bool) if by is None else by
+    out = np.zeros((len(groups), len(projections)))
     for v, projection in enumerate(projections):
         i, j, i_in_j, j_in_i = _overlapping_discs(points, radius, projection, reach_radii)
         if len(i) == 0:
             continue
-        for b, members in enumerate(inside):
+        for g, members in enumerate(groups):
             covered = np.zeros(len(points), dtype=bool)
-            covered[i[i_in_j & members[i] & ~members[j]]] = True
-            covered[j[j_in_i & members[j] & ~members[i]]] = True
-            out[b, v] = np.count_nonzero(covered & members) / counts[b]
+            covered[i[i_in_j & members[i] & ~members[j] & by[j]]] = True
+            covered[j[j_in_i & members[j] & ~members[i] & by[i]]] = True
+            out[g, v] = np.count_nonzero(covered & members) / max(np.count_nonzero(members), 1)
     return out
 
 
@@ -271,6 +283,35 @@ def prune_unreproduced_branches(tree: VesselTree, projections: Sequence[Projecti
             tree = _without(tree, int(b))
             removed += 1
     return tree, removed
+
+
+def unreproduced_inner_branches(tree: VesselTree, projections: Sequence[Projection],
+                                own_points_mm: Sequence[np.ndarray], nearest_skeleton: Sequence[np.ndarray], *,
+                                tolerance_mm: float, share: float, explained: float,
+                                reach_radii: float) -> np.ndarray:
+    """(N,) per point of ``tree.points()``: it belongs to a branch that carries children (not the
+    root) of whose own points less than ``share`` are reproduced (:func:`reproduced_points`) and
+    at least ``explained`` are covered in every view by reproduced points of the other branches
+    (:func:`explained_shares`' measure; its children count as others). The subtree rule
+    (:func:`prune_unreproduced_branches`) weighs a branch with its descendants: a phantom that
+    carries a true branch (the views' mismatch ran on into a vessel both show) is reproduced
+    enough with it and stays, and the true branch could not go with it. Its points are taken out
+    of the tubes like a contradicted stretch; the children are joined again through the hull."""
+    points, _, owner = tree.points()
+    reproduced = reproduced_points(tree, projections, own_points_mm, nearest_skeleton, tolerance_mm)
+    carries = np.zeros(tree.n_branches, dtype=bool)
+    carries[[b.parent for b in tree.branches[1:]]] = True
+    carries[0] = False
+    candidates = [b for b in np.flatnonzero(carries) if reproduced[owner == b].mean() < share]
+    marked = np.zeros(len(points), dtype=bool)
+    if not candidates:
+        return marked
+    groups = [owner == b for b in candidates]
+    covered = _covered_shares(tree, projections, reach_radii, groups, by=reproduced).min(axis=1)
+    for members, c in zip(groups, covered):
+        if c >= explained:
+            marked |= members
+    return marked
 
 
 def covered_points(tree: VesselTree, projections: Sequence[Projection], reach_radii: float,
@@ -479,26 +520,32 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
 
     tree, tree_build, pruned, unreproduced = fitted_and_pruned(initial)
     tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
-    stretch_points = 0
+    stretch_points = inner_removed = 0
     if own is not None:  # ... and the stretches inside branches: out, and the tree built again through the hull
         stretches = contradicted_stretches(tree, projections, own, nearest, tolerance_mm=settings.reproduced_mm,
                                            reach_radii=settings.explained_reach_radii,
                                            apart_mm=settings.stretch_apart_mm, min_length_mm=settings.stretch_min_mm)
-        rest = lattice_points_in_tubes(*_tube_segments(tree, ~stretches), lattice) if stretches.any() else initial
-        if stretches.any() and len(rest) >= 2:
-            stretch_points = int(stretches.sum())
+        inner = unreproduced_inner_branches(tree, projections, own, nearest, tolerance_mm=settings.reproduced_mm,
+                                            share=settings.reproduced_share,
+                                            explained=settings.unreproduced_explained,
+                                            reach_radii=settings.explained_reach_radii)
+        out = stretches | inner
+        rest = lattice_points_in_tubes(*_tube_segments(tree, ~out), lattice) if out.any() else initial
+        if out.any() and len(rest) >= 2:
+            stretch_points, inner_removed = int((stretches & ~inner).sum()), len(np.unique(tree.points()[2][inner]))
             tree, tree_build, more_pruned, more_unreproduced = fitted_and_pruned(rest)
             pruned, unreproduced = pruned + more_pruned, unreproduced + more_unreproduced
     tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     timings["tree"] = time.perf_counter() - start
     say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed, "
         f"{unreproduced} that the views' own matchings do not reproduce, {stretch_points} points of stretches "
-        f"they contradict)")
+        f"they contradict, {inner_removed} of them branches that carry others)")
 
     start = time.perf_counter()
     lumen = tree_lumen_points(tree, lattice, settings.lumen_margin_steps * lattice.spacing_mm)
     timings["lumen"] = time.perf_counter() - start
     build = ModelBuild(pairs=pairs, matched_share=shares, skeleton_pixels=skeleton_pixels, explained_removed=pruned,
-                       unreproduced_removed=unreproduced, stretch_points_removed=stretch_points, tree_build=tree_build,
+                       unreproduced_removed=unreproduced, stretch_points_removed=stretch_points,
+                       inner_removed=inner_removed, tree_build=tree_build,
                        timings_s=timings)
     return lumen, tree, build
