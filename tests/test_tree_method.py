@@ -13,7 +13,7 @@ from angiohull.errors import ReconstructionError
 from angiohull.geometry import CArmGeometry, parse_clinical_angles
 from angiohull.metrics.tree import distance_to_centerline, tree_scores
 from angiohull.reconstruction import Lattice, reconstruct
-from angiohull.reconstruction.model import centerline_graph, lattice_points_in_tubes
+from angiohull.reconstruction.model import MODEL_SETTINGS, centerline_graph, lattice_points_in_tubes
 from angiohull.reconstruction.model.matching import triangulate_midpoint
 from angiohull.synthetic import Tube, TubePhantom
 from angiohull.tree import Branch, VesselTree
@@ -625,4 +625,5 @@ def test_the_report_of_a_tree_reconstruction_names_its_pairs_prunings_and_stages
                                               "carrying_others_not_reproduced"}
     assert all(isinstance(n, int) and n >= 0 for n in block["branches_removed"].values())
     assert isinstance(block["contradicted_stretch_points_removed"], int)
+    assert block["rebuilds"] in range(MODEL_SETTINGS.stretch_rounds + 1)
     assert set(block["timings_s"]) >= {"centerlines_2d", "correspondence", "tubes", "tree", "lumen"}

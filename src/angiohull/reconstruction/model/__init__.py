@@ -36,7 +36,8 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    tree is fitted and pruned again from the rest (pieces joined through the hull), and with them
    every branch that carries others whose own points are reproduced less than ``reproduced_share``
    and covered by reproduced points of the other branches at least ``unreproduced_explained`` in
-   every view (a phantom that a true branch it carries keeps reproduced enough as a subtree).
+   every view (a phantom that a true branch it carries keeps reproduced enough as a subtree);
+   this again on the rebuilt tree while something goes, at most ``stretch_rounds`` times.
 5. **Lumen points**: the lattice points inside the fitted tree's tubes.
 
 Arrays and projections in, points and a tree out; nothing here reads files.
@@ -83,6 +84,7 @@ class ModelSettings:
     unreproduced_explained: float = 0.3  # ... and covered by the rest this much in every view goes
     stretch_min_mm: float = 3.0  # a run of contradicted, covered points inside a branch this long goes (notes)
     stretch_apart_mm: float = 5.0  # ... covered by tree points farther than this from it
+    stretch_rounds: int = 3  # the stretch step (with carrying branches) again on the rebuilt tree, at most this often
     claim_rounds: int = 2  # matchings again with each view's pixels claimed by the other's matching
     correspondence_join_order: str = "largest"  # the volume of step 3's tubes: its parts join largest first (notes)
 
@@ -103,6 +105,7 @@ class ModelBuild:
     unreproduced_removed: int = 0  # branches removed because the views' own matchings do not reproduce them
     stretch_points_removed: int = 0  # points of contradicted, covered stretches inside branches (tree built again)
     inner_removed: int = 0  # branches with children taken out of the tubes as unreproduced (tree built again)
+    rebuilds: int = 0  # times the tree was built again after stretches and such branches went
 
 
 def _viewing_direction(projection: Projection) -> np.ndarray:
@@ -520,8 +523,8 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
 
     tree, tree_build, pruned, unreproduced = fitted_and_pruned(initial)
     tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
-    stretch_points = inner_removed = 0
-    if own is not None:  # ... and the stretches inside branches: out, and the tree built again through the hull
+    stretch_points = inner_removed = rebuilds = 0
+    while own is not None and rebuilds < settings.stretch_rounds:  # ... and the stretches inside branches
         stretches = contradicted_stretches(tree, projections, own, nearest, tolerance_mm=settings.reproduced_mm,
                                            reach_radii=settings.explained_reach_radii,
                                            apart_mm=settings.stretch_apart_mm, min_length_mm=settings.stretch_min_mm)
@@ -530,22 +533,27 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
                                             explained=settings.unreproduced_explained,
                                             reach_radii=settings.explained_reach_radii)
         out = stretches | inner
-        rest = lattice_points_in_tubes(*_tube_segments(tree, ~out), lattice) if out.any() else initial
-        if out.any() and len(rest) >= 2:
-            stretch_points, inner_removed = int((stretches & ~inner).sum()), len(np.unique(tree.points()[2][inner]))
-            tree, tree_build, more_pruned, more_unreproduced = fitted_and_pruned(rest)
-            pruned, unreproduced = pruned + more_pruned, unreproduced + more_unreproduced
-    tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
+        if not out.any():
+            break
+        rest = lattice_points_in_tubes(*_tube_segments(tree, ~out), lattice)
+        if len(rest) < 2:
+            break
+        stretch_points += int((stretches & ~inner).sum())
+        inner_removed += len(np.unique(tree.points()[2][inner]))
+        rebuilds += 1  # out of the tubes, and the tree built again through the hull from the rest
+        tree, tree_build, more_pruned, more_unreproduced = fitted_and_pruned(rest)
+        pruned, unreproduced = pruned + more_pruned, unreproduced + more_unreproduced
+        tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     timings["tree"] = time.perf_counter() - start
     say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed, "
         f"{unreproduced} that the views' own matchings do not reproduce, {stretch_points} points of stretches "
-        f"they contradict, {inner_removed} of them branches that carry others)")
+        f"they contradict, {inner_removed} branches that carry others; {rebuilds} rebuilds)")
 
     start = time.perf_counter()
     lumen = tree_lumen_points(tree, lattice, settings.lumen_margin_steps * lattice.spacing_mm)
     timings["lumen"] = time.perf_counter() - start
     build = ModelBuild(pairs=pairs, matched_share=shares, skeleton_pixels=skeleton_pixels, explained_removed=pruned,
                        unreproduced_removed=unreproduced, stretch_points_removed=stretch_points,
-                       inner_removed=inner_removed, tree_build=tree_build,
+                       inner_removed=inner_removed, rebuilds=rebuilds, tree_build=tree_build,
                        timings_s=timings)
     return lumen, tree, build
