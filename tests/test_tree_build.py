@@ -796,3 +796,84 @@ def test_a_root_folded_through_the_ostium_keeps_the_ostiums_radius():
     start = root.radius_mm[root.arc_length_mm <= 10.0]
     assert result.tree_build.fold_points_reread > 0
     assert np.abs(start - truth.radius_mm[0]).max() < 0.3  # measured 0.07 (1.67 before)
+
+
+# -- bridges through the support hull ---------------------------------------------------------------
+def _support_u(lattice):
+    """Lattice points of a U-shaped support hull (two arms along x joined at x = +12 mm, 3 cells
+    thick), its two arms' tips at x = -12 mm: the part on one arm, the tree on the other."""
+    axis = lattice.axis_mm()
+    x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
+    h = lattice.spacing_mm
+    thick = np.abs(z) <= 1.01 * h
+    arm_a = (np.abs(y + 6.0) <= 1.01 * h) & (x >= -12.0) & (x <= 12.0)
+    arm_b = (np.abs(y - 6.0) <= 1.01 * h) & (x >= -12.0) & (x <= 12.0)
+    join = (np.abs(x - 12.0) <= 1.01 * h) & (np.abs(y) <= 6.0 + 1.01 * h)
+    inside = thick & (arm_a | arm_b | join)
+    return np.stack([x[inside], y[inside], z[inside]], axis=1)
+
+
+def _shortest_by_networkx(support_mm, h, sources_mm, targets_mm):
+    """Multi-source shortest path length between cells of the support (26-neighbours, Euclidean
+    steps), built cell by cell with networkx: the reference."""
+    import itertools
+
+    import networkx as nx
+
+    cells = {tuple(c): i for i, c in enumerate(np.round(support_mm / h).astype(int).tolist())}
+    graph = nx.Graph()
+    for c, i in cells.items():
+        for d in itertools.product((-1, 0, 1), repeat=3):
+            j = cells.get((c[0] + d[0], c[1] + d[1], c[2] + d[2]))
+            if j is not None and j != i:
+                graph.add_edge(i, j, weight=h * float(np.linalg.norm(d)))
+    index = lambda p: cells[tuple(np.round(p / h).astype(int).tolist())]  # noqa: E731
+    lengths = nx.multi_source_dijkstra_path_length(graph, {index(p) for p in sources_mm})
+    return min(lengths.get(index(p), np.inf) for p in targets_mm)
+
+
+def test_a_support_bridge_takes_the_shortest_path_through_the_hull_and_serves_every_part():
+    from angiohull.reconstruction.cube import Lattice
+    from angiohull.reconstruction.vessel_tree import SupportBridge
+
+    lattice = Lattice(20.0, 41)  # 1 mm cells
+    support = _support_u(lattice)
+    bridge = SupportBridge(support, lattice, 80.0)
+    cells = {tuple(c) for c in np.round(support / lattice.spacing_mm).astype(int).tolist()}
+    arm_a, arm_b = support[support[:, 1] < -3], support[support[:, 1] > 3]
+    # parts ever farther from the tree along the arm: gaps 1 to 20 mm straight, paths through the U
+    for tip in (-12.0, -6.0, 0.0, 8.0):
+        part = arm_a[(np.abs(arm_a[:, 0] - tip) < 0.5) & (np.abs(arm_a[:, 2]) < 0.5)]
+        tree = arm_b[arm_b[:, 0] <= -11.5]  # the other arm's tip
+        path = bridge(part, tree)
+        assert path is not None and len(path) >= 2
+        steps = np.round(np.diff(path, axis=0) / lattice.spacing_mm).astype(int)
+        assert np.abs(steps).max() == 1 and (np.abs(steps).sum(axis=1) > 0).all()  # 26-neighbour steps
+        assert {tuple(c) for c in np.round(path / lattice.spacing_mm).astype(int).tolist()} <= cells
+        length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+        assert length == pytest.approx(_shortest_by_networkx(support, lattice.spacing_mm, part, tree), rel=1e-9)
+        assert length > 12.0  # round the U, not across the 12 mm gap between the arms
+    # out of reach: a short bridge finds no path round the U
+    assert SupportBridge(support, lattice, 10.0)(arm_a[arm_a[:, 0] <= -11.5], arm_b[arm_b[:, 0] <= -11.5]) is None
+
+
+def test_a_support_bridge_built_once_gives_the_tree_a_fresh_one_gives():
+    from angiohull.reconstruction.vessel_tree import SupportBridge
+
+    truth = _y()
+    phantom = TubePhantom(tuple(Tube(b.points_mm, b.radius_mm) for b in truth.branches), "truth")
+    projections = _views()
+    masks = [phantom.silhouette(p) for p in projections]
+    result = reconstruct(projections, masks, preset="paper", centerlines=False)
+    # the hull without a slab across the second daughter: a part apart, joined through the whole hull
+    points = result.vessel_points_mm
+    cut = points[np.abs(points @ np.array([0.6, -0.8, 0.0]) - 12.0) > 5.0]
+    fresh, build = hull_tree(cut, result.lattice, projections, masks, support_points_mm=points)
+    assert build.skeleton.parts_bridged >= 1
+    shared = SupportBridge(points, result.lattice, 80.0)
+    for _ in range(2):  # the second tree reuses the graphs the first built
+        again, _ = hull_tree(cut, result.lattice, projections, masks, support_bridge=shared)
+        assert again.n_branches == fresh.n_branches
+        for a, b in zip(fresh.branches, again.branches):
+            np.testing.assert_array_equal(a.points_mm, b.points_mm)
+            np.testing.assert_array_equal(a.radius_mm, b.radius_mm)

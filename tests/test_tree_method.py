@@ -627,3 +627,29 @@ def test_the_report_of_a_tree_reconstruction_names_its_pairs_prunings_and_stages
     assert isinstance(block["contradicted_stretch_points_removed"], int)
     assert block["rebuilds"] in range(MODEL_SETTINGS.stretch_rounds + 1)
     assert set(block["timings_s"]) >= {"centerlines_2d", "correspondence", "tubes", "tree", "lumen"}
+
+
+def test_window_medians_are_numpys_medians_of_every_window():
+    from angiohull.reconstruction.model import _window_medians
+
+    rng = np.random.default_rng(7)
+    values = rng.gamma(2.0, 0.5, 60)
+    values[10:14] = 1.0  # ties
+    lo = rng.integers(0, 60, 200)
+    hi = np.minimum(lo + rng.integers(1, 15, 200), 60)  # widths 1 to 14, odd and even
+    expected = np.array([np.median(values[a:b]) for a, b in zip(lo, hi)])
+    np.testing.assert_array_equal(_window_medians(values, lo, hi), expected)
+
+
+def test_radius_spikes_come_down_to_the_ratio_times_the_local_median():
+    from angiohull.reconstruction.model import without_radius_spikes
+
+    # a 0.5 mm step, a 1.0 mm radius with a 3-point spike to 3 mm and a narrowing to 0.4 mm
+    radius = np.full(81, 1.0)
+    radius[40:43], radius[60:63] = 3.0, 0.4
+    tree = VesselTree((Branch(_line((0, 0, 0), (40, 0, 0)), radius),))
+    out = without_radius_spikes(tree, 3.0, 1.25).root.radius_mm
+    # each spike point's window (+-3 mm: 13 points) holds at most 3 spikes: its median is 1.0
+    np.testing.assert_allclose(out[40:43], 1.25)
+    np.testing.assert_array_equal(out[60:63], 0.4)  # a narrowing stays
+    np.testing.assert_array_equal(np.delete(out, [40, 41, 42]), np.delete(radius, [40, 41, 42]))

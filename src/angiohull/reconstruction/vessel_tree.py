@@ -184,7 +184,7 @@ from ..tree.teasar import teasar_skeleton
 from ..tree.voxels import coordinates, dilated, distance_to, neighbour_edges
 from .cube import Lattice
 
-__all__ = ["TreeSettings", "TREE_SETTINGS", "TreeBuild", "hull_tree"]
+__all__ = ["TreeSettings", "TREE_SETTINGS", "TreeBuild", "SupportBridge", "hull_tree"]
 
 
 @dataclass(frozen=True)
@@ -1006,13 +1006,13 @@ def _occupancy(points_mm: np.ndarray, lattice: Lattice, cell_mm: float) -> tuple
     return volume, low * spacing + 0.5 * (factor - 1) * h - lattice.half_edge_mm, spacing
 
 
-class _SupportBridge:
+class SupportBridge:
     """Shortest paths through a support hull, for :func:`~angiohull.tree.skeleton.tree_from_skeleton`:
     through its cells, or, where they hold no path (the carving, too, has gaps of a cell or two in
     thin vessels), through its cells grown by one. The graph of the whole hull is built once (and
     that of the grown hull when first needed) and serves every part; each search stops at its
-    reach. A quarter of the reach is searched first (most gaps are short), the whole reach only
-    when no target lies that close."""
+    reach. Most gaps are short: a search first reaches a little past the straight gap between the
+    part and the tree, then twice as far while no target lies that close, up to the whole reach."""
 
     def __init__(self, support_mm: np.ndarray, lattice: Lattice, limit_mm: float):
         self._limit = limit_mm
@@ -1031,7 +1031,10 @@ class _SupportBridge:
             index = np.zeros(box.shape, dtype=np.int32)  # untouched pages are never allocated
             index[tuple(voxels.T)] = np.arange(1, len(voxels) + 1, dtype=np.int32)
             heads, tails, lengths = neighbour_edges(voxels, box.shape)
-            graph = sparse.coo_matrix((self._h * lengths, (heads, tails)), shape=(len(voxels), len(voxels))).tocsr()
+            # both directions stored: a directed search needs no transpose per call
+            graph = sparse.coo_matrix((np.concatenate([self._h * lengths] * 2),
+                                       (np.concatenate([heads, tails]), np.concatenate([tails, heads]))),
+                                      shape=(len(voxels), len(voxels))).tocsr()
             self._graphs[grown] = (index, self._origin + self._h * voxels, graph)
         return self._graphs[grown]
 
@@ -1053,10 +1056,12 @@ class _SupportBridge:
             sources, targets = self._lookup(index, part_mm), self._lookup(index, tree_mm)
             if len(sources) == 0 or len(targets) == 0:
                 continue
-            # most gaps are short: a quarter of the reach first (the nearest target within it is
-            # the nearest of all), the whole reach only when none lies that close
-            for limit in (0.25 * self._limit, self._limit):
-                distance, predecessors, _ = dijkstra(graph, directed=False, indices=sources, min_only=True,
+            # most gaps are short: the search reaches a little past the straight gap first (no path
+            # is shorter than it; the nearest target within reach is the nearest of all), and twice
+            # as far each time no target lies that close, up to the whole reach
+            gap = float(cKDTree(points[targets]).query(points[sources])[0].min())
+            for limit in _widening_limits(1.5 * gap + 2.0 * self._h, self._limit):
+                distance, predecessors, _ = dijkstra(graph, directed=True, indices=sources, min_only=True,
                                                      limit=limit, return_predecessors=True)
                 best = targets[np.argmin(distance[targets])]
                 if np.isfinite(distance[best]):
@@ -1065,6 +1070,15 @@ class _SupportBridge:
                         path.append(int(predecessors[path[-1]]))
                     return points[path[::-1]]
         return None
+
+
+def _widening_limits(first: float, last: float) -> list[float]:
+    """Search limits from ``first``, doubling, to ``last`` (which ends the list)."""
+    limits = []
+    while first < last:
+        limits.append(first)
+        first *= 2.0
+    return limits + [last]
 
 
 def _skeleton_input(volume: np.ndarray, bridge: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
@@ -1085,7 +1099,7 @@ def _skeleton_input(volume: np.ndarray, bridge: int) -> tuple[np.ndarray, np.nda
 
 
 def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray],
-              *, support_points_mm: np.ndarray | None = None,
+              *, support_points_mm: np.ndarray | None = None, support_bridge: SupportBridge | None = None,
               settings: TreeSettings = TREE_SETTINGS) -> tuple[VesselTree, TreeBuild]:
     """The vessel tree of carved lattice points (module notes).
 
@@ -1100,6 +1114,9 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
         Lattice points of a wider hull that holds ``points_mm`` (the carving before the refined
         preset's steps): parts of the tree the narrower hull left apart are joined along the
         shortest path through it (at most ``max_bridge_mm``).
+    support_bridge : SupportBridge, optional, keyword-only
+        The same for several trees of one support hull: built once, it keeps the hull's graphs
+        (instead of ``support_points_mm``; its reach is its own).
     settings : TreeSettings
 
     Returns
@@ -1126,9 +1143,9 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     # the skeleton's voxels among the path volume's (both in C order): their distance to an empty cell
     radius_volume = depth[skeleton[paths]] * spacing
     images = [np.asarray(m, dtype=np.float32) for m in masks]
-    bridge = None
-    if support_points_mm is not None and len(support_points_mm):
-        bridge = _SupportBridge(np.asarray(support_points_mm, dtype=np.float64), lattice, settings.max_bridge_mm)
+    bridge = support_bridge
+    if bridge is None and support_points_mm is not None and len(support_points_mm):
+        bridge = SupportBridge(np.asarray(support_points_mm, dtype=np.float64), lattice, settings.max_bridge_mm)
 
     try:
         raw, skeleton_info = tree_from_skeleton(skeleton, radius_volume, origin_mm=origin,

@@ -58,7 +58,7 @@ from ...errors import ReconstructionError
 from ...geometry import Projection
 from ...tree import Branch, VesselTree
 from ..cube import Lattice
-from ..vessel_tree import TREE_SETTINGS, TreeBuild, TreeSettings, hull_tree
+from ..vessel_tree import TREE_SETTINGS, SupportBridge, TreeBuild, TreeSettings, hull_tree
 from .graph2d import CenterlineGraph2D, centerline_graph
 from .matching import MATCH_SETTINGS, MatchSettings, ViewData, mask_core, match_pixels
 from .tubes import lattice_points_in_tubes
@@ -194,18 +194,25 @@ def _covered_shares(tree: VesselTree, projections: Sequence[Projection], reach_r
     """(G, V): per group of points ((N,) bool over ``tree.points()``) and view, the share of the
     group's points that points outside it cover there (:func:`explained_shares`); with ``by``
     ((N,) bool), only those points cover."""
+    import scipy.sparse as sparse
+
     points, radius, _ = tree.points()
     by = np.ones(len(points), dtype=bool) if by is None else by
+    members = np.array(groups, dtype=bool).reshape(len(groups), len(points))
+    counts = np.maximum(members.sum(axis=1), 1)
+    outside = (~members).T.astype(np.float32)  # (N, G): the points each group's may be covered by
     out = np.zeros((len(groups), len(projections)))
     for v, projection in enumerate(projections):
         i, j, i_in_j, j_in_i = _overlapping_discs(points, radius, projection, reach_radii)
         if len(i) == 0:
             continue
-        for g, members in enumerate(groups):
-            covered = np.zeros(len(points), dtype=bool)
-            covered[i[i_in_j & members[i] & ~members[j] & by[j]]] = True
-            covered[j[j_in_i & members[j] & ~members[i] & by[i]]] = True
-            out[g, v] = np.count_nonzero(covered & members) / max(np.count_nonzero(members), 1)
+        # covering[p, q]: q's disc covers p; p of a group is covered when a point outside it covers p
+        first, second = i_in_j & by[j], j_in_i & by[i]
+        covered, coverer = np.concatenate([i[first], j[second]]), np.concatenate([j[first], i[second]])
+        covering = sparse.csr_matrix((np.ones(len(covered), dtype=np.float32), (covered, coverer)),
+                                     shape=(len(points), len(points)))
+        by_outside = np.asarray(covering @ outside) > 0  # (N, G)
+        out[:, v] = np.count_nonzero(by_outside.T & members, axis=1) / counts
     return out
 
 
@@ -382,6 +389,17 @@ def _tube_segments(tree: VesselTree, keep: np.ndarray | None = None):
     return tuple(np.concatenate(x) for x in (starts, ends, r0, r1))
 
 
+def _window_medians(values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(M,) the median of ``values[lo[k]:hi[k]]`` for every k (windows not empty), as ``np.median``
+    gives it (the middle value, or the mean of the two middle ones), all windows at once."""
+    width = hi - lo
+    index = lo[:, None] + np.arange(width.max())[None, :]
+    window = np.where(index < hi[:, None], values[np.minimum(index, len(values) - 1)], np.inf)
+    window.sort(axis=1)  # the padding last
+    rows = np.arange(len(lo))
+    return (window[rows, (width - 1) // 2] + window[rows, width // 2]) / 2
+
+
 def without_radius_spikes(tree: VesselTree, window_mm: float, ratio: float) -> VesselTree:
     """The tree with every radius above ``ratio`` times the median of its branch's radii within
     ``window_mm`` of arc either side brought down to that bound. The lumen of the tree method is
@@ -390,11 +408,9 @@ def without_radius_spikes(tree: VesselTree, window_mm: float, ratio: float) -> V
     branches = []
     for b in tree.branches:
         arc = b.arc_length_mm
-        radius = b.radius_mm.copy()
         lo = np.searchsorted(arc, arc - window_mm, side="left")
         hi = np.searchsorted(arc, arc + window_mm, side="right")
-        bound = ratio * np.array([np.median(b.radius_mm[i:j]) for i, j in zip(lo, hi)])
-        radius = np.minimum(radius, bound)
+        radius = np.minimum(b.radius_mm, ratio * _window_medians(b.radius_mm, lo, hi))
         branches.append(Branch(b.points_mm, radius, b.parent, b.parent_point, b.name))
     return VesselTree(tuple(branches))
 
@@ -506,14 +522,17 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         raise ReconstructionError("the tree method's volume holds fewer than two lattice points; use a finer lattice")
 
     start = time.perf_counter()
+    bridge = None  # the support hull's graphs, built once for every rebuild
+    if support_points_mm is not None and len(support_points_mm):
+        bridge = SupportBridge(np.asarray(support_points_mm, dtype=np.float64), lattice, settings.tree.max_bridge_mm)
 
     def fitted_and_pruned(volume: np.ndarray) -> tuple[VesselTree, TreeBuild, int, int]:
         tree_settings = settings.tree
         if own is not None:  # the correspondences' tubes: phantom pieces among the parts (module notes)
             tree_settings = replace(tree_settings, skeleton=replace(tree_settings.skeleton,
                                                                     join_order=settings.correspondence_join_order))
-        tree, tree_build = hull_tree(volume, lattice, projections, masks,
-                                     support_points_mm=support_points_mm, settings=tree_settings)
+        tree, tree_build = hull_tree(volume, lattice, projections, masks, support_bridge=bridge,
+                                     settings=tree_settings)
         tree, pruned = prune_explained_branches(tree, projections, settings.explained_share,
                                                 settings.explained_reach_radii)
         unreproduced = 0
