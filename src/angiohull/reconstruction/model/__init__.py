@@ -38,8 +38,8 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    and covered by reproduced points of the other branches at least ``unreproduced_explained`` in
    every view (a phantom that a true branch it carries keeps reproduced enough as a subtree);
    this ``stretch_rounds`` times at most, each round on the tree the last one rebuilt, while
-   something goes (1 by default: each round costs a tree build; 3 rounds gain 0.2-1.1 Dice3D
-   points on two views but take the slowest timing case over 2 s, docs/tree-method.md).
+   something goes (3 by default: each round costs a tree build, the support hull's graph built
+   once for all; 3 rounds gain 0.2-1.1 Dice3D points over one on two views, docs/tree-method.md).
 5. **Lumen points**: the lattice points inside the fitted tree's tubes.
 
 Arrays and projections in, points and a tree out; nothing here reads files.
@@ -86,7 +86,7 @@ class ModelSettings:
     unreproduced_explained: float = 0.3  # ... and covered by the rest this much in every view goes
     stretch_min_mm: float = 3.0  # a run of contradicted, covered points inside a branch this long goes (notes)
     stretch_apart_mm: float = 5.0  # ... covered by tree points farther than this from it
-    stretch_rounds: int = 1  # times the stretch step (with carrying branches) runs, each on the tree the last rebuilt (notes)
+    stretch_rounds: int = 3  # times the stretch step (with carrying branches) runs, each on the tree the last rebuilt (notes)
     claim_rounds: int = 2  # matchings again with each view's pixels claimed by the other's matching
     correspondence_join_order: str = "largest"  # the volume of step 3's tubes: its parts join largest first (notes)
 
