@@ -388,10 +388,10 @@ def test_a_contradicted_stretch_that_true_vessels_cover_is_marked_and_its_uncove
                                     min_length_mm=3.0)
     owner = tree.points()[2]
     reproduced = reproduced_points(tree, projections, own, nearest, 2.0)
-    covered = covered_points(tree, projections, 0.5, 5.0, by=reproduced)
+    covered = covered_points(tree, projections, 0.5, 5.0)
     assert not marked[owner < 2].any()  # the true Y
     phantom = owner == 2
-    # on the phantom: exactly the runs of contradicted points that reproduced ones cover, 3 mm or longer
+    # on the phantom: exactly the runs of contradicted points that points 5 mm away cover, 3 mm or longer
     expected = np.zeros(len(owner), dtype=bool)
     run = ~reproduced & covered & phantom
     arc = tree.branches[2].arc_length_mm

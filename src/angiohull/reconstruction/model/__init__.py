@@ -31,7 +31,7 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    3D point more than ``reproduced_mm`` away (a vessel of A matched to the wrong vessel of B gives
    points that B's own matching puts elsewhere); a subtree less than ``reproduced_share``
    reproduced goes, the least reproduced first. Last, the stretches inside branches: runs of at
-   least ``stretch_min_mm`` of points that the matchings contradict and that reproduced points
+   least ``stretch_min_mm`` of points that the matchings contradict and that tree points
    farther than ``stretch_apart_mm`` cover in every view are taken out of the tubes, and the
    tree is fitted and pruned again from the rest (pieces joined through the hull), and with them
    every branch that carries others whose own points are reproduced less than ``reproduced_share``
@@ -351,12 +351,13 @@ def contradicted_stretches(tree: VesselTree, projections: Sequence[Projection], 
                            apart_mm: float, min_length_mm: float) -> np.ndarray:
     """(N,) per point of ``tree.points()``: it lies in a run of consecutive points of its branch, at
     least ``min_length_mm`` of arc long, each of which some view's own matching puts elsewhere
-    (farther than ``tolerance_mm``, :func:`reproduced_points`) and other vessels cover in every
-    view (:func:`covered_points`): a stretch of a vessel of A matched to the wrong vessel of B
-    inside a branch, which no subtree rule can take out."""
+    (farther than ``tolerance_mm``, :func:`reproduced_points`) and tree points farther than
+    ``apart_mm`` cover in every view (:func:`covered_points`; contradicted ones too): a stretch of
+    a vessel of A matched to the wrong vessel of B inside a branch, which no subtree rule can take
+    out. A true stretch taken out is joined again through the hull, a phantom one left in stays."""
     points, _, _ = tree.points()
     contradicted = _contradicted(points, projections, own_points_mm, nearest_skeleton, tolerance_mm)
-    suspect = contradicted & covered_points(tree, projections, reach_radii, apart_mm, by=~contradicted)
+    suspect = contradicted & covered_points(tree, projections, reach_radii, apart_mm)
     marked = np.zeros(len(points), dtype=bool)
     offset = 0
     for branch in tree.branches:
