@@ -379,6 +379,23 @@ def test_covered_points_match_a_point_by_point_reference(reach_radii, apart_mm):
                                   _covered_by_brute_force(tree, projections, reach_radii, apart_mm, np.ones_like(by)))
 
 
+def _runs_at_least(flags, arc_mm, min_mm):
+    """The runs of consecutive True flags at least ``min_mm`` of arc long, point by point (the reference)."""
+    out = np.zeros(len(flags), dtype=bool)
+    k = 0
+    while k < len(flags):
+        if flags[k]:
+            e = k
+            while e + 1 < len(flags) and flags[e + 1]:
+                e += 1
+            if arc_mm[e] - arc_mm[k] >= min_mm:
+                out[k:e + 1] = True
+            k = e + 1
+        else:
+            k += 1
+    return out
+
+
 def test_a_contradicted_stretch_that_true_vessels_cover_is_marked_and_its_uncovered_tail_is_not():
     from angiohull.reconstruction.model import contradicted_stretches, covered_points, reproduced_points
 
@@ -393,22 +410,33 @@ def test_a_contradicted_stretch_that_true_vessels_cover_is_marked_and_its_uncove
     phantom = owner == 2
     # on the phantom: exactly the runs of contradicted points that points 5 mm away cover, 3 mm or longer
     expected = np.zeros(len(owner), dtype=bool)
-    run = ~reproduced & covered & phantom
-    arc = tree.branches[2].arc_length_mm
-    start = np.flatnonzero(phantom)[0]
-    k = 0
-    while k < phantom.sum():
-        if run[start + k]:
-            e = k
-            while e + 1 < phantom.sum() and run[start + e + 1]:
-                e += 1
-            if arc[e] - arc[k] >= 3.0:
-                expected[start + k:start + e + 1] = True
-            k = e + 1
-        else:
-            k += 1
+    expected[phantom] = _runs_at_least((~reproduced & covered)[phantom], tree.branches[2].arc_length_mm, 3.0)
     np.testing.assert_array_equal(marked, expected)
     assert marked[phantom].mean() > 0.5 and not marked[phantom][-15:].any()  # the tail's last 7 mm are nobody's
+
+
+def test_a_contradicted_stretch_goes_when_the_vessel_that_covers_it_is_contradicted_too():
+    from angiohull.reconstruction.model import contradicted_stretches, covered_points, reproduced_points
+
+    # the second branch's pixels matched 10 mm off as well: in the first view the phantom is covered
+    # only by points the matchings contradict (confused on both sides), and it still goes; the
+    # second branch, contradicted but covered by nothing in the second view, stays
+    tree, projections = _with_mirror_phantom()
+    own, nearest = _own_matchings(_y(), projections, lying=(1,))
+    owner = tree.points()[2]
+    phantom = owner == 2
+    reproduced = reproduced_points(tree, projections, own, nearest, 2.0)
+    arc = tree.branches[2].arc_length_mm
+    # counting the cover of reproduced points only (the pixels left unmatched), none of it would go
+    by_reproduced = covered_points(tree, projections, 0.5, 5.0, by=reproduced)
+    assert reproduced[owner == 1].mean() < 0.05 and reproduced[phantom].mean() < 0.1
+    assert not _runs_at_least((~reproduced & by_reproduced)[phantom], arc, 3.0).any()
+    marked = contradicted_stretches(tree, projections, own, nearest, tolerance_mm=2.0, reach_radii=0.5, apart_mm=5.0,
+                                    min_length_mm=3.0)
+    assert not marked[owner < 2].any()
+    covered = covered_points(tree, projections, 0.5, 5.0)
+    np.testing.assert_array_equal(marked[phantom], _runs_at_least((~reproduced & covered)[phantom], arc, 3.0))
+    assert marked[phantom].mean() > 0.5 and not marked[phantom][-15:].any()
 
 
 def _phantom_carrying_a_vessel(twig=False):
