@@ -220,6 +220,21 @@ def test_explained_shares_match_a_point_by_point_reference(reach_radii):
         np.testing.assert_allclose(shares[:, v], _explained_by_brute_force(tree, projection, reach_radii), atol=1e-12)
 
 
+def test_disc_pairs_searched_once_serve_the_tree_left_when_branches_go():
+    from angiohull.reconstruction.model import _DiscPairs, _without, explained_shares
+
+    tree, projections = _with_phantoms(tail_mm=12.0), _views()
+    pairs = _DiscPairs(tree, projections, 0.5)
+    owner = tree.points()[2]
+    for gone in ([3], [2, 3], [1]):  # (the phantom chain from its leaf; the second branch)
+        smaller = tree
+        for b in sorted(gone, reverse=True):
+            smaller = _without(smaller, b)
+        keep = ~np.isin(owner, gone)
+        np.testing.assert_array_equal(explained_shares(smaller, projections, 0.5, pairs=pairs.of(keep)),
+                                      explained_shares(smaller, projections, 0.5))
+
+
 def test_a_phantom_branch_goes_with_the_phantom_it_carries_and_the_true_tree_stays():
     from angiohull.reconstruction.model import explained_shares, prune_explained_branches
 

@@ -179,21 +179,49 @@ def _overlapping_discs(points: np.ndarray, radius: np.ndarray, projection: Proje
     return i, j, gap <= rho[j] + reach_radii * rho[i], gap <= rho[i] + reach_radii * rho[j]
 
 
-def explained_shares(tree: VesselTree, projections: Sequence[Projection], reach_radii: float) -> np.ndarray:
+def explained_shares(tree: VesselTree, projections: Sequence[Projection], reach_radii: float,
+                     pairs: list | None = None) -> np.ndarray:
     """(B, V): per branch and view, the share of the points of the branch's subtree (the branch
     and its descendants) that the rest of the tree covers there. A point's disc is its projected
     radius plus half a pixel; the point is covered when its projection lies within the disc's
     radius of a point outside the subtree plus ``reach_radii`` times its own (0: its centre inside
-    the other disc; 0.5: the two discs overlap by at least half its radius; 1: they touch)."""
+    the other disc; 0.5: the two discs overlap by at least half its radius; 1: they touch). With
+    ``pairs``, the tree's disc pairs per view, they are not searched again (:class:`_DiscPairs`)."""
     owner = tree.points()[2]
-    return _covered_shares(tree, projections, reach_radii, [np.isin(owner, members) for members in _subtrees(tree)])
+    return _covered_shares(tree, projections, reach_radii, [np.isin(owner, members) for members in _subtrees(tree)],
+                           pairs=pairs)
+
+
+class _DiscPairs:
+    """:func:`_overlapping_discs` of a tree's points in every view, searched once and served for
+    the tree and for what is left of it as branches go (a pair's flags depend on its two points
+    alone; the search's radius, the largest disc's, only widens what it finds)."""
+
+    def __init__(self, tree: VesselTree, projections: Sequence[Projection], reach_radii: float):
+        points, radius, _ = tree.points()
+        self._views = [_overlapping_discs(points, radius, p, reach_radii) for p in projections]
+
+    def of(self, keep: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """The pairs per view among the points ``keep`` ((N,) bool over the tree's points) in the
+        indices of the points kept (a tree without some branches: :func:`_without` keeps the
+        others' points in order)."""
+        if keep.all():
+            return self._views
+        index = np.cumsum(keep) - 1
+        out = []
+        for i, j, i_in_j, j_in_i in self._views:
+            both = keep[i] & keep[j]
+            out.append((index[i[both]], index[j[both]], i_in_j[both], j_in_i[both]))
+        return out
 
 
 def _covered_shares(tree: VesselTree, projections: Sequence[Projection], reach_radii: float,
-                    groups: Sequence[np.ndarray], by: np.ndarray | None = None) -> np.ndarray:
+                    groups: Sequence[np.ndarray], by: np.ndarray | None = None,
+                    pairs: list | None = None) -> np.ndarray:
     """(G, V): per group of points ((N,) bool over ``tree.points()``) and view, the share of the
     group's points that points outside it cover there (:func:`explained_shares`); with ``by``
-    ((N,) bool), only those points cover."""
+    ((N,) bool), only those points cover; with ``pairs``, the tree's disc pairs per view
+    (:class:`_DiscPairs`)."""
     import scipy.sparse as sparse
 
     points, radius, _ = tree.points()
@@ -203,7 +231,8 @@ def _covered_shares(tree: VesselTree, projections: Sequence[Projection], reach_r
     outside = (~members).T.astype(np.float32)  # (N, G): the points each group's may be covered by
     out = np.zeros((len(groups), len(projections)))
     for v, projection in enumerate(projections):
-        i, j, i_in_j, j_in_i = _overlapping_discs(points, radius, projection, reach_radii)
+        i, j, i_in_j, j_in_i = (_overlapping_discs(points, radius, projection, reach_radii) if pairs is None
+                                else pairs[v])
         if len(i) == 0:
             continue
         # covering[p, q]: q's disc covers p; p of a group is covered when a point outside it covers p
@@ -225,8 +254,11 @@ def prune_explained_branches(tree: VesselTree, projections: Sequence[Projection]
     subtree with pixels nothing else explains in some view stays. The root's subtree, the whole
     tree, always stays. Returns the tree and how many branches went."""
     removed = 0
+    pairs = _DiscPairs(tree, projections, reach_radii)  # searched once; branches only go
+    owner, ids = tree.points()[2], list(range(tree.n_branches))  # ids: each branch's index at the start
+    keep = np.ones(len(owner), dtype=bool)
     while tree.n_branches > 1:
-        shares = explained_shares(tree, projections, reach_radii).min(axis=1)
+        shares = explained_shares(tree, projections, reach_radii, pairs=pairs.of(keep)).min(axis=1)
         sizes = np.array([sum(tree.branches[b].n_points for b in members) for members in _subtrees(tree)])
         candidates = [b for b in range(1, tree.n_branches) if shares[b] > share]
         if not candidates:
@@ -234,6 +266,7 @@ def prune_explained_branches(tree: VesselTree, projections: Sequence[Projection]
         best = max(candidates, key=lambda b: (shares[b], sizes[b]))  # of equally covered subtrees the largest
         for b in _subtrees(tree)[best][::-1]:  # descendants after their parents: leaves go first
             tree = _without(tree, int(b))
+            keep[owner == ids.pop(int(b))] = False
             removed += 1
     return tree, removed
 
@@ -279,6 +312,7 @@ def prune_unreproduced_branches(tree: VesselTree, projections: Sequence[Projecti
     whatever the matchings say. The root's subtree always stays. Returns the tree and how many
     branches went."""
     removed = 0
+    pairs = None  # the disc pairs, searched once when first needed (:class:`_DiscPairs`)
     while tree.n_branches > 1:
         reproduced = reproduced_points(tree, projections, own_points_mm, nearest_skeleton, tolerance_mm)
         _, _, owner = tree.points()
@@ -286,13 +320,17 @@ def prune_unreproduced_branches(tree: VesselTree, projections: Sequence[Projecti
         shares = np.array([reproduced[np.isin(owner, members)].mean() for members in subtrees])
         if not (shares[1:] < share).any():
             break  # the coverage is not needed: nothing is unreproduced enough
-        covered = explained_shares(tree, projections, reach_radii).min(axis=1)
+        if pairs is None:
+            pairs, first_owner, ids = _DiscPairs(tree, projections, reach_radii), owner, list(range(tree.n_branches))
+            keep = np.ones(len(owner), dtype=bool)
+        covered = explained_shares(tree, projections, reach_radii, pairs=pairs.of(keep)).min(axis=1)
         candidates = [b for b in range(1, tree.n_branches) if shares[b] < share and covered[b] >= explained]
         if not candidates:
             break
         worst = min(candidates, key=lambda b: (shares[b], -covered[b]))
         for b in subtrees[worst][::-1]:  # descendants after their parents: leaves go first
             tree = _without(tree, int(b))
+            keep[first_owner == ids.pop(int(b))] = False
             removed += 1
     return tree, removed
 
