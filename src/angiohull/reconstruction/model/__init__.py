@@ -198,19 +198,24 @@ class _DiscPairs:
     alone; the search's radius, the largest disc's, only widens what it finds)."""
 
     def __init__(self, tree: VesselTree, projections: Sequence[Projection], reach_radii: float):
-        points, radius, _ = tree.points()
+        points, radius, self._owner = tree.points()
         self._views = [_overlapping_discs(points, radius, p, reach_radii) for p in projections]
+        self._ids = list(range(tree.n_branches))  # each branch's index in the first tree
+        self._keep = np.ones(len(points), dtype=bool)
 
-    def of(self, keep: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
-        """The pairs per view among the points ``keep`` ((N,) bool over the tree's points) in the
-        indices of the points kept (a tree without some branches: :func:`_without` keeps the
-        others' points in order)."""
-        if keep.all():
+    def without(self, branch: int) -> None:
+        """Branch ``branch`` (its index in the tree now) went, as :func:`_without` takes it (the
+        others' points keep their order)."""
+        self._keep[self._owner == self._ids.pop(branch)] = False
+
+    def current(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """The pairs per view among the points left, in the tree's indices now."""
+        if self._keep.all():
             return self._views
-        index = np.cumsum(keep) - 1
+        index = np.cumsum(self._keep) - 1
         out = []
         for i, j, i_in_j, j_in_i in self._views:
-            both = keep[i] & keep[j]
+            both = self._keep[i] & self._keep[j]
             out.append((index[i[both]], index[j[both]], i_in_j[both], j_in_i[both]))
         return out
 
@@ -255,10 +260,8 @@ def prune_explained_branches(tree: VesselTree, projections: Sequence[Projection]
     tree, always stays. Returns the tree and how many branches went."""
     removed = 0
     pairs = _DiscPairs(tree, projections, reach_radii)  # searched once; branches only go
-    owner, ids = tree.points()[2], list(range(tree.n_branches))  # ids: each branch's index at the start
-    keep = np.ones(len(owner), dtype=bool)
     while tree.n_branches > 1:
-        shares = explained_shares(tree, projections, reach_radii, pairs=pairs.of(keep)).min(axis=1)
+        shares = explained_shares(tree, projections, reach_radii, pairs=pairs.current()).min(axis=1)
         sizes = np.array([sum(tree.branches[b].n_points for b in members) for members in _subtrees(tree)])
         candidates = [b for b in range(1, tree.n_branches) if shares[b] > share]
         if not candidates:
@@ -266,7 +269,7 @@ def prune_explained_branches(tree: VesselTree, projections: Sequence[Projection]
         best = max(candidates, key=lambda b: (shares[b], sizes[b]))  # of equally covered subtrees the largest
         for b in _subtrees(tree)[best][::-1]:  # descendants after their parents: leaves go first
             tree = _without(tree, int(b))
-            keep[owner == ids.pop(int(b))] = False
+            pairs.without(int(b))
             removed += 1
     return tree, removed
 
@@ -321,16 +324,15 @@ def prune_unreproduced_branches(tree: VesselTree, projections: Sequence[Projecti
         if not (shares[1:] < share).any():
             break  # the coverage is not needed: nothing is unreproduced enough
         if pairs is None:
-            pairs, first_owner, ids = _DiscPairs(tree, projections, reach_radii), owner, list(range(tree.n_branches))
-            keep = np.ones(len(owner), dtype=bool)
-        covered = explained_shares(tree, projections, reach_radii, pairs=pairs.of(keep)).min(axis=1)
+            pairs = _DiscPairs(tree, projections, reach_radii)
+        covered = explained_shares(tree, projections, reach_radii, pairs=pairs.current()).min(axis=1)
         candidates = [b for b in range(1, tree.n_branches) if shares[b] < share and covered[b] >= explained]
         if not candidates:
             break
         worst = min(candidates, key=lambda b: (shares[b], -covered[b]))
         for b in subtrees[worst][::-1]:  # descendants after their parents: leaves go first
             tree = _without(tree, int(b))
-            keep[first_owner == ids.pop(int(b))] = False
+            pairs.without(int(b))
             removed += 1
     return tree, removed
 
