@@ -6,6 +6,8 @@ axis: positions, radii (away from the tube ends and the bifurcation, where a cro
 tube's), the bifurcation point, and the mesh of the tree.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -13,7 +15,7 @@ from angiohull.errors import ReconstructionError, TreeError
 from angiohull.geometry import CArmGeometry, parse_clinical_angles
 from angiohull.metrics.tree import distance_to_centerline
 from angiohull.reconstruction import reconstruct
-from angiohull.reconstruction.vessel_tree import hull_tree
+from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, hull_tree, refit_tree
 from angiohull.synthetic import Tube, TubePhantom
 from angiohull.tree import Branch, VesselTree
 from angiohull.tree.skeleton import tree_from_skeleton
@@ -877,3 +879,52 @@ def test_a_support_bridge_built_once_gives_the_tree_a_fresh_one_gives():
         for a, b in zip(fresh.branches, again.branches):
             np.testing.assert_array_equal(a.points_mm, b.points_mm)
             np.testing.assert_array_equal(a.radius_mm, b.radius_mm)
+
+
+def test_a_second_fit_pass_is_the_first_passes_tree_fitted_again():
+    """hull_tree's default two passes are one pass, then refit_tree on its tree (the same numbers);
+    the build says so and sums what the passes removed and took."""
+    truth = _y()
+    result = _reconstructed(truth)
+    projections = _views()
+    phantom = TubePhantom(tuple(Tube(b.points_mm, b.radius_mm) for b in truth.branches), "truth")
+    masks = [phantom.silhouette(p) for p in projections]
+    assert TREE_SETTINGS.fit_passes == 2
+    one, one_build = hull_tree(result.vessel_points_mm, result.lattice, projections, masks,
+                               settings=replace(TREE_SETTINGS, fit_passes=1))
+    two, two_build = hull_tree(result.vessel_points_mm, result.lattice, projections, masks)
+    again, again_build = refit_tree(one, projections, masks, build=one_build)
+    assert two.n_branches == again.n_branches
+    for a, b in zip(two.branches, again.branches):
+        np.testing.assert_array_equal(a.points_mm, b.points_mm)
+        np.testing.assert_array_equal(a.radius_mm, b.radius_mm)
+        assert (a.parent, a.parent_point) == (b.parent, b.parent_point)
+    assert (one_build.fit_passes, two_build.fit_passes, again_build.fit_passes) == (1, 2, 2)
+    assert "refit" not in one_build.timings_s and two_build.timings_s["refit"] > 0
+    assert two_build.skeleton == one_build.skeleton
+    assert two_build.tips_moved_mm == one_build.tips_moved_mm
+    assert two_build.points_fitted == again_build.points_fitted
+    assert two_build.unseen_leaves_removed == again_build.unseen_leaves_removed >= one_build.unseen_leaves_removed
+
+
+@pytest.mark.parametrize("views", [2, 3])
+def test_a_refit_brings_a_displaced_widened_tree_back_onto_the_tube(views):
+    """The true arc, moved 0.4 mm across its plane and widened by 40 %, fitted again to the exact
+    silhouettes of its true tube: back on the true axis and radii (an analytic truth)."""
+    truth = _curved()
+    projections = _views()[:views]
+    phantom = TubePhantom(tuple(Tube(b.points_mm, b.radius_mm) for b in truth.branches), "truth")
+    masks = [phantom.silhouette(p) for p in projections]
+    (arc,) = truth.branches
+    across = np.cross(arc.points_mm[-1] - arc.points_mm[0], arc.points_mm[len(arc.points_mm) // 2] - arc.points_mm[0])
+    across /= np.linalg.norm(across)
+    spoiled = VesselTree((Branch(arc.points_mm + 0.4 * across, 1.4 * arc.radius_mm, name="arc"),))
+    tree, build = refit_tree(spoiled, projections, masks)
+    assert build.fit_passes == 1 and set(build.timings_s) == {"refit"}
+    before, _, _, _ = distance_to_centerline(spoiled.points()[0], truth)
+    points, radius, _ = tree.points()
+    distance, _, radius_true, _ = distance_to_centerline(points, truth)
+    inner = _interior(points, truth, radius_true)
+    assert inner.sum() > 40 and before.min() > 0.39
+    assert distance[inner].mean() < 0.1 and distance[inner].max() < 0.25
+    assert np.all(np.abs(radius[inner] - radius_true[inner]) <= np.maximum(0.1, 0.1 * radius_true[inner]))

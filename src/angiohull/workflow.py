@@ -252,7 +252,7 @@ def tree_summary(tree: VesselTree | None, build: Any = None, error: str | None =
             "fold_points_reread": build.fold_points_reread,
             "unseen_head_points_removed": build.unseen_head_points_removed,
             "tips_moved_mm": list(build.tips_moved_mm), "root_moved_to_ostium_mm": build.rerooted_mm,
-            "junctions_moved_mm": list(build.junctions_moved_mm),
+            "junctions_moved_mm": list(build.junctions_moved_mm), "fit_passes": build.fit_passes,
             "timings_s": dict(build.timings_s),
         }
     return out

@@ -40,6 +40,9 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    this ``stretch_rounds`` times at most, each round on the tree the last one rebuilt, while
    something goes (3 by default: each round costs a tree build, the support hull's graph built
    once for all; 3 rounds gain 0.2-1.1 Dice3D points over one on two views, docs/tree-method.md).
+   The builds of these rounds fit their trees once; the final tree is then fitted once more
+   (:func:`..vessel_tree.refit_tree`, ``TreeSettings.fit_passes``; the pass in every round's
+   build instead moved the rounds' choices more than it gained, docs/tree-method.md).
 5. **Lumen points**: the lattice points inside the fitted tree's tubes.
 
 Arrays and projections in, points and a tree out; nothing here reads files.
@@ -58,7 +61,7 @@ from ...errors import ReconstructionError
 from ...geometry import Projection
 from ...tree import Branch, VesselTree
 from ..cube import Lattice
-from ..vessel_tree import TREE_SETTINGS, SupportBridge, TreeBuild, TreeSettings, hull_tree
+from ..vessel_tree import TREE_SETTINGS, SupportBridge, TreeBuild, TreeSettings, hull_tree, refit_tree
 from .graph2d import CenterlineGraph2D, centerline_graph
 from .matching import MATCH_SETTINGS, MatchSettings, ViewData, mask_core, match_pixels
 from .tubes import lattice_points_in_tubes
@@ -608,6 +611,10 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         if rebuilds < settings.stretch_rounds:  # judged again in the next round
             tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
+    if own is not None and len(projections) < 3 and settings.tree.fit_passes > 1:  # fitted again (module notes)
+        tree, tree_build = refit_tree(tree, projections, masks, build=tree_build, passes=settings.tree.fit_passes - 1,
+                                      settings=settings.tree)
+        tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     timings["tree"] = time.perf_counter() - start
     say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed, "
         f"{unreproduced} that the views' own matchings do not reproduce, {stretch_points} points of stretches "
