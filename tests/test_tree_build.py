@@ -543,6 +543,24 @@ def test_a_root_cut_to_its_junction_keeps_its_unseen_tail_and_the_fit_runs():
     np.testing.assert_allclose(step[1:, 1:], 0.0, atol=1e-12)
 
 
+def test_a_root_whose_only_child_leaves_its_last_point_keeps_its_unseen_head():
+    # after a first pass has removed the root's unseen continuation, the root can end where its
+    # only child leaves: its head is then all of it but that point, and cutting it left a root of
+    # one point (the second pass crashed on the authors' perpendicular_moderate_005, paper preset).
+    # The head stays, and the tree is built.
+    from angiohull.reconstruction.vessel_tree import _Arrays
+
+    root = _line((0, 0, 0), (8, 0, 0))
+    child = _line(root[-1], root[-1] + (0, 10, 0))
+    arrays = _Arrays.of(VesselTree((Branch(root, 1.0, name="root"),
+                                    Branch(child, 0.8, parent=0, parent_point=len(root) - 1))))
+    seen = np.ones((3, len(arrays.points)), dtype=bool)
+    seen[:, :len(root)] = False  # no view sees any of the root
+    same, count = arrays.without_unseen_head(seen, 0.75, fork_deg=45.0)
+    assert count == 0 and same is arrays
+    assert [b.n_points for b in same.tree().branches] == [len(root), len(child)]
+
+
 def test_repeated_points_dropped_from_a_parent_keep_its_childrens_junctions():
     # a parent of 6 points whose 3rd and 4th coincide: the tree keeps 5. A child leaving its last
     # point (index 5) leaves point 4 of the kept ones, a child leaving the repeat (index 3) leaves
