@@ -752,6 +752,42 @@ def test_a_run_merged_on_one_side_is_read_from_its_clean_edge():
     assert known.all() and np.allclose(offset, 0.5)
 
 
+def test_a_view_that_cannot_measure_a_point_still_keeps_its_disc_inside_the_run():
+    # a vessel of radius 1 along x, drawn in the image (1 px per mm): every run spoiled on both
+    # sides (another vessel merged with it, or crossing it, all along), so no view measures the
+    # axis. With bound_unmeasured (the second pass on) a run whose edges were both found bounds
+    # it, hand-worked: the run [-1.5, 4] holds the disc [-1, 1] (says nothing); [0.5, 6] pushes the
+    # axis to one radius inside its left edge, 1.5; [-6, 0.2] to -0.8; [-0.6, 0.4], narrower than
+    # the disc, to its middle, -0.1; a run with an edge not found, or a foreshortened view's run,
+    # bounds it the same way (an edge not found says nothing); without the flag nothing is known.
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _centre_targets
+
+    points = _line((-10, 0, 0), (10, 0, 0), 0.5)
+    arrays = _Arrays.of(VesselTree((Branch(points, 1.0, name="vessel"),)))
+    n = len(arrays.points)
+    runs = np.array([(-1.5, 4.0), (0.5, 6.0), (-6.0, 0.2), (-0.6, 0.4), (np.nan, 3.0)])
+    edges = np.resize(runs, (n, 2))[None]
+    sections = _replace_sections(_flat_sections(arrays), edges_px=edges, offset_px=edges.mean(axis=2))
+    spoiled = np.ones((1, n), dtype=bool)
+    seen = np.zeros((1, n), dtype=bool)
+    kind = np.arange(n) % len(runs)
+    offset, known = _centre_targets(sections, arrays.radius, seen, spoiled, spoiled, TREE_SETTINGS,
+                                    bound_unmeasured=True)
+    np.testing.assert_array_equal(known[0], np.isin(kind, (1, 2, 3)))
+    expected = np.array([np.nan, 1.5, -0.8, -0.1, np.nan])[kind]
+    np.testing.assert_allclose(offset[0, known[0]], expected[known[0]], atol=1e-12)
+    assert not _centre_targets(sections, arrays.radius, seen, spoiled, spoiled, TREE_SETTINGS)[1].any()
+    flat = _replace_sections(sections, foreshortening=np.full((1, n), 0.3))
+    offset_flat, known_flat = _centre_targets(flat, arrays.radius, seen, spoiled, spoiled, TREE_SETTINGS,
+                                              bound_unmeasured=True)
+    np.testing.assert_array_equal(known_flat, known)
+    np.testing.assert_allclose(offset_flat[known_flat], offset[known])
+    # a run not found at all (no run through, or within 2 px of, the projection) bounds nothing
+    lost = _replace_sections(sections, found=np.zeros((1, n), dtype=bool))
+    assert not _centre_targets(lost, arrays.radius, seen, spoiled, spoiled, TREE_SETTINGS,
+                               bound_unmeasured=True)[1].any()
+
+
 def _replace_sections(sections, **fields):
     from dataclasses import replace
 

@@ -178,6 +178,17 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    and with a second pass the QCA benchmark's two-view hull column found 70 of the 147 stenoses
    instead of 81. The tree method fits its final two-view tree a second time itself
    (docs/tree-method.md, step 5).
+   From the second pass on (``bound_unmeasured``, since 2026-12-05), a view that cannot measure a
+   point's axis (its run spoiled on both sides by other vessels, or the vessel foreshortened
+   there) but found the run still bounds it: where the point's projected disc reaches past an edge
+   of that run, the axis is drawn back to one radius inside the edge (to the run's middle where
+   the run is narrower than the disc), as a target like a measured one; a disc inside the run
+   says nothing. On the tree method's final two-view trees (generated, exact masks) 45 % of such
+   point-views had the disc past an edge, and drawing them back cut their error along the normal
+   from 1.0 to 0.6 px (towards the truth in 85 %). The first pass starts from the skeleton's
+   positions and radii; in every build of the tree method's stretch rounds the bound moved the
+   rounds' choices (exact masks +0.26 +- 0.11 Dice3D on 120 other trees, random pairs -0.12 +-
+   0.37), in the final refit alone it gained on every two-view setting (docs/tree-method.md).
 
 Arrays and projections in, a tree out; nothing here reads files.
 """
@@ -221,6 +232,7 @@ class TreeSettings:
     overlap_margin_mm: float = 1.0  # points of one branch farther apart along it than the two radii plus this can overlap
     radius_smoothing_mm: float = 0.0  # Gaussian sigma of the radii along a branch, mm (0: none; see the notes)
     fit_passes: int = 2  # steps 2-6 run this many times with 3+ views, each on the tree the last gave (notes, step 8)
+    bound_unmeasured: bool = True  # from the second pass on, a view that cannot measure a point keeps its disc in the run
     max_unseen_share: float = 0.75  # a leaf branch no view sees over this share of its points is removed
     head_fork_deg: float = 45.0  # ... and the root's head, unless a child leaves its junction within this of it
     fold_bend_deg: float = 90.0  # a centerline turning more than this between the chords a radius either side folds
@@ -631,12 +643,17 @@ def _combine_radius(sections: _Sections, seen: np.ndarray, previous: np.ndarray,
 
 
 def _centre_targets(sections: _Sections, radius: np.ndarray, seen: np.ndarray, spoiled_left: np.ndarray,
-                    spoiled_right: np.ndarray, settings: TreeSettings) -> tuple[np.ndarray, np.ndarray]:
+                    spoiled_right: np.ndarray, settings: TreeSettings,
+                    bound_unmeasured: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Where the axis projects, along each view's normal, and in which views that is known: (V, N)
     offsets and bool. The middle of the run where the view sees the point, or where both of the
     run's edges are the vessel's own (another vessel crosses it within its silhouette); one edge
     plus the projected radius towards the other where only that edge is the vessel's own (the
-    other side merges with another vessel or runs past the reach)."""
+    other side merges with another vessel or runs past the reach). With ``bound_unmeasured``, a
+    view that knows neither (both edges another vessel's, or the vessel foreshortened) but found
+    the run still bounds the point: where its projected disc reaches past an edge of the run, the
+    axis is moved back to one radius inside that edge (to the run's middle where the run is
+    narrower than the disc); where the disc lies inside, the view says nothing (module notes, step 8)."""
     left, right = sections.edges_px[..., 0], sections.edges_px[..., 1]
     clear = sections.foreshortening >= settings.min_foreshortening
     clean_left = clear & np.isfinite(left) & ~spoiled_left
@@ -645,7 +662,16 @@ def _centre_targets(sections: _Sections, radius: np.ndarray, seen: np.ndarray, s
     rho = radius[None, :] * sections.px_per_mm
     offset = np.where(middle, sections.offset_px,
                       np.where(clean_left, left + rho, np.where(clean_right, right - rho, 0.0)))
-    return offset, middle | clean_left | clean_right
+    known = middle | clean_left | clean_right
+    if bound_unmeasured:
+        bounded = sections.found & ~known & np.isfinite(left) & np.isfinite(right)
+        inner_left, inner_right = left + rho, right - rho
+        with np.errstate(invalid="ignore"):
+            inside = np.where(inner_left > inner_right, 0.5 * (left + right), np.clip(0.0, inner_left, inner_right))
+        bounded &= inside != 0.0  # the disc reaches past an edge
+        offset = np.where(bounded, inside, offset)
+        known = known | bounded
+    return offset, known
 
 
 def _centre_step(sections: _Sections, offset: np.ndarray, known: np.ndarray, tangents: np.ndarray,
@@ -1194,7 +1220,8 @@ def refit_tree(tree: VesselTree, projections: Sequence[Projection], masks: Seque
     images = [np.asarray(m, dtype=np.float32) for m in masks]
     for _ in range(passes):
         start = time.perf_counter()
-        tree, last = _fitted(tree, projections, images, build.skeleton if build else SkeletonInfo(), {}, settings)
+        tree, last = _fitted(tree, projections, images, build.skeleton if build else SkeletonInfo(), {}, settings,
+                             refit=True)
         if build is None:
             build = replace(last, timings_s={"refit": time.perf_counter() - start})
             continue
@@ -1212,8 +1239,10 @@ def refit_tree(tree: VesselTree, projections: Sequence[Projection], masks: Seque
 
 
 def _fitted(raw: VesselTree, projections: Sequence[Projection], images: Sequence[np.ndarray],
-            skeleton_info: SkeletonInfo, timings: dict[str, float], settings: TreeSettings) -> tuple[VesselTree, TreeBuild]:
-    """Steps 2-6 of the module notes on a tree (the skeleton's, or a fitted one)."""
+            skeleton_info: SkeletonInfo, timings: dict[str, float], settings: TreeSettings,
+            refit: bool = False) -> tuple[VesselTree, TreeBuild]:
+    """Steps 2-6 of the module notes on a tree (the skeleton's, or with ``refit`` a fitted one:
+    then the views that cannot measure a point bound it, ``settings.bound_unmeasured``)."""
 
     start = time.perf_counter()
     step = settings.point_step_mm
@@ -1256,7 +1285,8 @@ def _fitted(raw: VesselTree, projections: Sequence[Projection], images: Sequence
         held = seen.sum(axis=0) == 0
         arrays.radius = _combine_radius(sections, seen, arrays.radius, settings.radius_foreshortening_tolerance)
         _interpolate_held(arrays, held)
-        offset, known = _centre_targets(sections, arrays.radius, seen, spoiled_left, spoiled_right, settings)
+        offset, known = _centre_targets(sections, arrays.radius, seen, spoiled_left, spoiled_right, settings,
+                                        bound_unmeasured=refit and settings.bound_unmeasured)
         arrays.points = arrays.points + _centre_step(sections, offset, known, tangents, arrays.radius)
         for b in range(len(arrays.counts)):
             arrays.reattach(b)
