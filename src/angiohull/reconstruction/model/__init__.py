@@ -42,7 +42,9 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    once for all; 3 rounds gain 0.2-1.1 Dice3D points over one on two views, docs/tree-method.md).
    The builds of these rounds fit their trees once; the final tree is then fitted once more
    (:func:`..vessel_tree.refit_tree`, ``TreeSettings.fit_passes``; the pass in every round's
-   build instead moved the rounds' choices more than it gained, docs/tree-method.md).
+   build instead moved the rounds' choices more than it gained, docs/tree-method.md), where a
+   view that cannot measure a point keeps its disc inside the run it found
+   (``TreeSettings.bound_unmeasured``).
 5. **Lumen points**: the lattice points inside the fitted tree's tubes.
 
 Arrays and projections in, points and a tree out; nothing here reads files.
