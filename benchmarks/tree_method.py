@@ -138,9 +138,11 @@ def _dice_split(result, truth_tree, truth_points_mm: np.ndarray) -> dict:
     """Where the tree method's Dice3D goes: the true tree's own lumen points on the same lattice
     (the same tubes, margin and voxels: what a perfect tree scores), and the Dice3D with the far
     voxels set right: the reconstruction's voxels whose centre lies more than a voxel (3 mm)
-    outside every true tube taken out (phantom vessel), the true voxels more than a voxel outside
-    every reconstructed tube put in (missing vessel), and both; what is left to the lattice's is
-    local (positions and radii near the truth)."""
+    outside the true tubes taken out (phantom vessel), the true voxels more than a voxel outside
+    the reconstructed tubes put in (missing vessel), and both. Outside: the distance to the
+    nearest point of the tree's centerline (0.5 mm apart) less that point's radius. What the far
+    voxels leave between the Dice3D and the true tree's score is local (positions and radii near
+    the truth)."""
     from scipy.spatial import cKDTree
 
     from angiohull.metrics import scores_3d
@@ -151,7 +153,7 @@ def _dice_split(result, truth_tree, truth_points_mm: np.ndarray) -> dict:
     perfect = tree_lumen_points(truth_tree, lattice, MODEL_SETTINGS.lumen_margin_steps * lattice.spacing_mm)
     ours, true = ({tuple(v) for v in voxelise(p)} for p in (result.vessel_points_mm, truth_points_mm))
 
-    def far(voxels: set, tree) -> int:  # voxels whose centre lies more than a voxel outside every tube of tree
+    def far(voxels: set, tree) -> int:  # voxels whose centre lies more than a voxel outside the tree's tubes
         if not voxels:
             return 0
         points, radius, _ = tree.resampled(0.5).points()

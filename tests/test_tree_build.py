@@ -758,8 +758,8 @@ def test_a_view_that_cannot_measure_a_point_still_keeps_its_disc_inside_the_run(
     # axis. With bound_unmeasured (the second pass on) a run whose edges were both found bounds
     # it, hand-worked: the run [-1.5, 4] holds the disc [-1, 1] (says nothing); [0.5, 6] pushes the
     # axis to one radius inside its left edge, 1.5; [-6, 0.2] to -0.8; [-0.6, 0.4], narrower than
-    # the disc, to its middle, -0.1; a run with an edge not found, or a foreshortened view's run,
-    # bounds it the same way (an edge not found says nothing); without the flag nothing is known.
+    # the disc, to its middle, -0.1; a run with an edge not found says nothing. A foreshortened
+    # view's run bounds the point the same way; without the flag nothing is known.
     from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _centre_targets
 
     points = _line((-10, 0, 0), (10, 0, 0), 0.5)
