@@ -760,7 +760,7 @@ def test_a_view_that_cannot_measure_a_point_still_keeps_its_disc_inside_the_run(
     # axis to one radius inside its left edge, 1.5; [-6, 0.2] to -0.8; [-0.6, 0.4], narrower than
     # the disc, to its middle, -0.1; a run with an edge not found says nothing. A foreshortened
     # view's run bounds the point the same way; without the flag nothing is known.
-    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _centre_targets
+    from angiohull.reconstruction.vessel_tree import _Arrays, _centre_targets
 
     points = _line((-10, 0, 0), (10, 0, 0), 0.5)
     arrays = _Arrays.of(VesselTree((Branch(points, 1.0, name="vessel"),)))
