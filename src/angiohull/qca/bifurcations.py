@@ -34,6 +34,7 @@ from typing import Sequence
 import numpy as np
 
 from ..tree import VesselTree
+from ..tree.model import point_at_arc
 from .profile import Lesion
 from .vessels import TreeVessels, Vessel, VesselSettings, tree_vessels
 
@@ -104,10 +105,6 @@ def _json_float(value: float) -> float | None:
     return None if not math.isfinite(value) else float(value)
 
 
-def _point_at(points: np.ndarray, arc: np.ndarray, s: float) -> np.ndarray:
-    return np.array([np.interp(s, arc, points[:, k]) for k in range(3)])
-
-
 def arm_direction(points_mm: np.ndarray, arc_mm: np.ndarray, start_mm: float, reverse: bool,
                   settings: BifurcationSettings = BifurcationSettings(), *,
                   offset_mm: float = 0.0) -> tuple[np.ndarray | None, float]:
@@ -120,8 +117,8 @@ def arm_direction(points_mm: np.ndarray, arc_mm: np.ndarray, start_mm: float, re
     if length < settings.min_arm_mm:
         return None, max(length, 0.0)
     sign = -1.0 if reverse else 1.0
-    near = _point_at(points_mm, arc_mm, start_mm + sign * offset_mm)
-    far = _point_at(points_mm, arc_mm, start_mm + sign * (offset_mm + length))
+    near = point_at_arc(points_mm, arc_mm, start_mm + sign * offset_mm)
+    far = point_at_arc(points_mm, arc_mm, start_mm + sign * (offset_mm + length))
     chord = far - near
     norm = float(np.linalg.norm(chord))
     return (chord / norm if norm > 0 else None), length
@@ -133,8 +130,8 @@ def _arm(vessel: Vessel, start: float, reverse: bool, settings: BifurcationSetti
     if direction is None:
         return None, length, None, None
     sign = -1.0 if reverse else 1.0
-    near = _point_at(vessel.points_mm, vessel.arc_mm, start + sign * offset)
-    far = _point_at(vessel.points_mm, vessel.arc_mm, start + sign * (offset + length))
+    near = point_at_arc(vessel.points_mm, vessel.arc_mm, start + sign * offset)
+    far = point_at_arc(vessel.points_mm, vessel.arc_mm, start + sign * (offset + length))
     return (tuple(float(x) for x in direction), length, tuple(float(x) for x in near), tuple(float(x) for x in far))
 
 

@@ -39,6 +39,7 @@ import numpy as np
 from .. import _validation as _v
 from ..errors import QcaError
 from ..tree import VesselTree
+from ..tree.model import point_at_arc
 
 __all__ = ["VesselSettings", "Vessel", "TreeVessels", "tree_vessels"]
 
@@ -89,10 +90,6 @@ class TreeVessels:
         return self.vessels[self.vessel_of[branch]]
 
 
-def _point_at(points: np.ndarray, arc: np.ndarray, s: float) -> np.ndarray:
-    return np.array([np.interp(s, arc, points[:, k]) for k in range(3)])
-
-
 def _subtree_lengths(tree: VesselTree) -> list[float]:
     """Length of each branch with all its descendants (parents are listed before children)."""
     total = [b.length_mm for b in tree.branches]
@@ -127,9 +124,9 @@ def _continuation(tree: VesselTree, parent: int, children: list[int], subtree: l
         child = tree.branches[c]
         s0 = float(arc[child.parent_point])
         here = p.points_mm[child.parent_point]
-        incoming = here - _point_at(p.points_mm, arc, max(s0 - _DIRECTION_MM, 0.0))
+        incoming = here - point_at_arc(p.points_mm, arc, max(s0 - _DIRECTION_MM, 0.0))
         carc = child.arc_length_mm
-        outgoing = _point_at(child.points_mm, carc, min(_DIRECTION_MM, float(carc[-1]))) - child.points_mm[0]
+        outgoing = point_at_arc(child.points_mm, carc, min(_DIRECTION_MM, float(carc[-1]))) - child.points_mm[0]
         norm = float(np.linalg.norm(incoming) * np.linalg.norm(outgoing))
         cosine = float(incoming @ outgoing) / norm if norm > 0 else 0.0
         ahead = child.radius_mm[1:][carc[1:] <= _DIRECTION_MM]

@@ -209,6 +209,7 @@ from scipy.spatial import cKDTree
 from ..errors import ReconstructionError, TreeError
 from ..geometry import Projection
 from ..tree import Branch, VesselTree
+from ..tree.model import point_at_arc
 from ..tree.skeleton import SkeletonInfo, SkeletonSettings, rerooted, tree_from_skeleton
 from ..tree.teasar import teasar_skeleton
 from ..tree.voxels import coordinates, dilated, distance_to, neighbour_edges
@@ -979,11 +980,6 @@ def _straight_tips(arrays: _Arrays, settings: TreeSettings) -> int:
     return count
 
 
-def _at_arc(arc: np.ndarray, points: np.ndarray, at: float) -> np.ndarray:
-    """The point at arc length ``at`` of the polyline ``points`` (arc lengths ``arc``), linearly."""
-    return np.array([np.interp(at, arc, points[:, k]) for k in range(points.shape[1])])
-
-
 def _move_ends(arrays: _Arrays, projections, images, settings: TreeSettings) -> tuple[VesselTree, list[float]]:
     tree = arrays.tree()
     has_child_at = {(b.parent, b.parent_point) for b in tree.branches[1:]}
@@ -1020,7 +1016,7 @@ def _move_ends(arrays: _Arrays, projections, images, settings: TreeSettings) -> 
                     keep[:last_needed + 1] = True
                     if keep.sum() >= 2:
                         last = int(np.flatnonzero(keep)[-1])
-                        end_point, end_radius = _at_arc(arc, points, target), float(np.interp(target, arc, radius))
+                        end_point, end_radius = point_at_arc(points, arc, target), float(np.interp(target, arc, radius))
                         points, radius = points[keep], radius[keep]
                         if target - arc[last] > 1e-3:  # the new end where the cap left the masks, not the point before it
                             points, radius = np.vstack([points, end_point]), np.append(radius, end_radius)

@@ -29,7 +29,7 @@ import numpy as np
 from .. import _validation as _v
 from ..errors import TreeError
 
-__all__ = ["Branch", "VesselTree", "Bifurcation", "TREE_JSON_FORMAT"]
+__all__ = ["Branch", "VesselTree", "Bifurcation", "TREE_JSON_FORMAT", "point_at_arc"]
 
 TREE_JSON_FORMAT = "angiohull-vessel-tree"
 """The ``format`` field of :meth:`VesselTree.to_dict` (``tree.json``)."""
@@ -149,6 +149,12 @@ class Branch:
         where = "root" if self.parent is None else f"parent={self.parent} at point {self.parent_point}"
         return (f"Branch({self.name!r}, {self.n_points} points, {self.length_mm:.1f} mm, radius "
                 f"{self.radius_mm.min():.2f}-{self.radius_mm.max():.2f} mm, {where})")
+
+
+def point_at_arc(points_mm: np.ndarray, arc_mm: np.ndarray, at_mm: float) -> np.ndarray:
+    """The point at arc length ``at_mm`` of the polyline ``points_mm`` ((M, 3); ``arc_mm`` its
+    increasing arc lengths), interpolated linearly; clamped to the ends outside ``arc_mm``."""
+    return np.array([np.interp(at_mm, arc_mm, points_mm[:, k]) for k in range(3)])
 
 
 def _steps(length_mm: float, step_mm: float) -> int:
