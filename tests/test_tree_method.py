@@ -261,6 +261,35 @@ def test_a_subtree_with_pixels_nothing_else_explains_stays_whole():
     assert explained_shares(everything, projections, 0.5)[3].min() == 1.0
 
 
+def test_a_branch_pruned_for_a_phantom_that_went_later_comes_back_and_the_phantom_stays_out():
+    from angiohull.reconstruction.model import explained_shares, restore_uncovered_branches
+
+    # the explained rule takes the second branch for the phantom chain that covers it (the test
+    # above); say the next rule then takes the phantom chain: nothing kept covers the second branch
+    # any more, so it comes back, and then covers the phantom's subtree as much as the kept tree
+    # did when it went (the unreproduced rule's 30 %), so the phantom stays out
+    tree, projections = _with_phantoms(tail_mm=12.0), _views()
+    second_alone = explained_shares(_y(), projections, 0.5)[1].min()  # what the trunk covers of it
+    phantom_cover = explained_shares(tree, projections, 0.5)[2].min()  # what trunk and second cover of the chain
+    assert second_alone < 0.9 and 0.3 <= phantom_cover < 0.9
+    explained, unreproduced = np.nextafter(0.9, 1.0), 0.3
+    alive, restored = restore_uncovered_branches(tree, [True, False, False, False],
+                                                 [0.0, explained, unreproduced, unreproduced], projections, 0.5)
+    assert restored == 1 and alive.tolist() == [True, True, False, False]
+    # had the explained rule taken the chain too (over 90 % then), the kept tree's cover of it now
+    # is below that: it comes back as well, and its child with it (the child's own subtree: the
+    # tail nothing else shows)
+    alive, restored = restore_uncovered_branches(tree, [True, False, False, False],
+                                                 [0.0, explained, explained, explained], projections, 0.5)
+    assert restored == 3 and alive.all()
+    # the chain without the tail: trunk and second cover it whole, and it stays out
+    tree = _with_phantoms()
+    assert explained_shares(tree, projections, 0.5)[2].min() > 0.9
+    alive, restored = restore_uncovered_branches(tree, [True, True, False, False],
+                                                 [0.0, explained, explained, explained], projections, 0.5)
+    assert restored == 0 and alive.tolist() == [True, True, False, False]
+
+
 # -- pruning the branches the views' own matchings do not reproduce --------------------------------
 def _own_matchings(tree, projections, lying=()):
     """Per view, a skeleton made of the projected points of ``tree``'s branches, each skeleton pixel
@@ -670,6 +699,7 @@ def test_the_report_of_a_tree_reconstruction_names_its_pairs_prunings_and_stages
                                               "carrying_others_not_reproduced"}
     assert all(isinstance(n, int) and n >= 0 for n in block["branches_removed"].values())
     assert isinstance(block["contradicted_stretch_points_removed"], int)
+    assert isinstance(block["pruned_branches_put_back"], int) and block["pruned_branches_put_back"] >= 0
     assert block["rebuilds"] in range(MODEL_SETTINGS.stretch_rounds + 1)
     assert set(block["timings_s"]) >= {"centerlines_2d", "correspondence", "tubes", "tree", "lumen"}
 

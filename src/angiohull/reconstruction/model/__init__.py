@@ -30,7 +30,11 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    unless, in some view, the skeleton pixel under it was matched by that view's own matching to a
    3D point more than ``reproduced_mm`` away (a vessel of A matched to the wrong vessel of B gives
    points that B's own matching puts elsewhere); a subtree less than ``reproduced_share``
-   reproduced goes, the least reproduced first. Last, the stretches inside branches: runs of at
+   reproduced goes, the least reproduced first. What covered a removed subtree may have gone
+   after it (a phantom that made a true branch look explained, taken by the second rule): a
+   removed branch whose parent stays comes back when the kept tree covers its subtree less than
+   its rule asked (``restore_uncovered``, :func:`restore_uncovered_branches`; the least covered
+   first, its children candidates in turn). Last, the stretches inside branches: runs of at
    least ``stretch_min_mm`` of points that the matchings contradict and that tree points
    farther than ``stretch_apart_mm`` cover in every view are taken out of the tubes, and the
    tree is fitted and pruned again from the rest (pieces joined through the hull), and with them
@@ -71,7 +75,7 @@ from .tubes import lattice_points_in_tubes
 __all__ = ["ModelSettings", "MODEL_SETTINGS", "ModelBuild", "model_tree", "centerline_graph", "CenterlineGraph2D",
            "MatchSettings", "lattice_points_in_tubes", "explained_shares", "prune_explained_branches",
            "reproduced_points", "prune_unreproduced_branches", "unreproduced_inner_branches", "covered_points",
-           "contradicted_stretches"]
+           "contradicted_stretches", "restore_uncovered_branches"]
 
 
 @dataclass(frozen=True)
@@ -94,6 +98,7 @@ class ModelSettings:
     stretch_rounds: int = 3  # times the stretch step (with carrying branches) runs, each on the tree the last rebuilt (notes)
     claim_rounds: int = 2  # matchings again with each view's pixels claimed by the other's matching
     correspondence_join_order: str = "largest"  # the volume of step 3's tubes: its parts join largest first (notes)
+    restore_uncovered: bool = True  # a pruned branch the kept tree no longer covers as its rule asked comes back (notes)
 
 
 MODEL_SETTINGS = ModelSettings()
@@ -113,6 +118,7 @@ class ModelBuild:
     stretch_points_removed: int = 0  # points of contradicted, covered stretches inside branches (tree built again)
     inner_removed: int = 0  # branches with children taken out of the tubes as unreproduced (tree built again)
     rebuilds: int = 0  # times the tree was built again after stretches and such branches went
+    restored: int = 0  # pruned branches put back because what covered them went too
 
 
 def _viewing_direction(projection: Projection) -> np.ndarray:
@@ -159,6 +165,14 @@ def _without(tree: VesselTree, leaf: int) -> VesselTree:
         parent = b.parent if b.parent is None or b.parent < leaf else b.parent - 1
         branches.append(Branch(b.points_mm, b.radius_mm, parent, b.parent_point, b.name))
     return VesselTree(tuple(branches))
+
+
+def _kept(tree: VesselTree, alive: np.ndarray) -> VesselTree:
+    """The tree of the branches where ``alive`` ((B,) bool) holds, in their order (every kept
+    branch's parent kept)."""
+    index = np.cumsum(alive) - 1
+    return VesselTree(tuple(Branch(b.points_mm, b.radius_mm, None if b.parent is None else int(index[b.parent]),
+                                   b.parent_point, b.name) for b, keep in zip(tree.branches, alive) if keep))
 
 
 def _subtrees(tree: VesselTree) -> list[np.ndarray]:
@@ -263,7 +277,14 @@ def prune_explained_branches(tree: VesselTree, projections: Sequence[Projection]
     view shows (a phantom where two vessels' cones cross, and the phantoms it leads to), while a
     subtree with pixels nothing else explains in some view stays. The root's subtree, the whole
     tree, always stays. Returns the tree and how many branches went."""
-    removed = 0
+    pruned, kept = _explained_pruning(tree, projections, share, reach_radii)
+    return pruned, tree.n_branches - len(kept)
+
+
+def _explained_pruning(tree: VesselTree, projections: Sequence[Projection], share: float,
+                       reach_radii: float) -> tuple[VesselTree, list[int]]:
+    """:func:`prune_explained_branches`: the tree, and the indices its branches had in ``tree``."""
+    kept = list(range(tree.n_branches))
     pairs = _DiscPairs(tree, projections, reach_radii)  # searched once; branches only go
     while tree.n_branches > 1:
         shares = explained_shares(tree, projections, reach_radii, pairs=pairs.current()).min(axis=1)
@@ -275,8 +296,8 @@ def prune_explained_branches(tree: VesselTree, projections: Sequence[Projection]
         for b in _subtrees(tree)[best][::-1]:  # descendants after their parents: leaves go first
             tree = _without(tree, int(b))
             pairs.without(int(b))
-            removed += 1
-    return tree, removed
+            kept.pop(int(b))
+    return tree, kept
 
 
 def reproduced_points(tree: VesselTree, projections: Sequence[Projection], own_points_mm: Sequence[np.ndarray],
@@ -319,7 +340,16 @@ def prune_unreproduced_branches(tree: VesselTree, projections: Sequence[Projecti
     the tree shows the same pixels; a subtree that nothing else explains in some view stays,
     whatever the matchings say. The root's subtree always stays. Returns the tree and how many
     branches went."""
-    removed = 0
+    pruned, kept = _unreproduced_pruning(tree, projections, own_points_mm, nearest_skeleton, tolerance_mm=tolerance_mm,
+                                         share=share, explained=explained, reach_radii=reach_radii)
+    return pruned, tree.n_branches - len(kept)
+
+
+def _unreproduced_pruning(tree: VesselTree, projections: Sequence[Projection], own_points_mm: Sequence[np.ndarray],
+                          nearest_skeleton: Sequence[np.ndarray], *, tolerance_mm: float, share: float,
+                          explained: float, reach_radii: float) -> tuple[VesselTree, list[int]]:
+    """:func:`prune_unreproduced_branches`: the tree, and the indices its branches had in ``tree``."""
+    kept = list(range(tree.n_branches))
     pairs = None  # the disc pairs, searched once when first needed (:class:`_DiscPairs`)
     while tree.n_branches > 1:
         reproduced = reproduced_points(tree, projections, own_points_mm, nearest_skeleton, tolerance_mm)
@@ -338,8 +368,59 @@ def prune_unreproduced_branches(tree: VesselTree, projections: Sequence[Projecti
         for b in subtrees[worst][::-1]:  # descendants after their parents: leaves go first
             tree = _without(tree, int(b))
             pairs.without(int(b))
-            removed += 1
-    return tree, removed
+            kept.pop(int(b))
+    return tree, kept
+
+
+def restore_uncovered_branches(tree: VesselTree, alive: np.ndarray, removal_cover: np.ndarray,
+                               projections: Sequence[Projection], reach_radii: float) -> tuple[np.ndarray, int]:
+    """Put back the pruned branches that what is kept no longer covers as their removal asked.
+
+    A prune removes a subtree for what the rest of the tree covers of it then (the explained rule:
+    over 90 % in every view; the unreproduced rule: 30 %); what covered it may go later (a phantom
+    that made a true branch look explained, removed by the next rule), leaving pixels that nothing
+    kept explains. Of the removed branches whose parent is kept, the one whose subtree (as in
+    ``tree``) the kept branches cover least, relative to its ``removal_cover``, comes back when
+    that cover (the smallest over the views, :func:`explained_shares`' measure) is below
+    ``removal_cover``; its removed children become candidates in turn; until none is below.
+
+    Parameters
+    ----------
+    tree : VesselTree
+        The tree before the prunings.
+    alive : (B,) bool array
+        The branches the prunings kept (every kept branch's parent kept; the root kept).
+    removal_cover : (B,) array
+        Per branch, the cover of its subtree at or above which it stays removed (its rule's
+        threshold; for a rule that removes above a share, the next float above it).
+    projections : sequence of Projection
+    reach_radii : float
+        :func:`explained_shares`' reach.
+
+    Returns
+    -------
+    alive : (B,) bool array
+        The branches kept, those put back included.
+    restored : int
+        How many came back.
+    """
+    alive = np.array(alive, dtype=bool)
+    removal_cover = np.asarray(removal_cover, dtype=float)
+    subtrees, owner = _subtrees(tree), tree.points()[2]
+    restored = 0
+    while True:
+        roots = [b for b in range(1, tree.n_branches) if not alive[b] and alive[tree.branches[b].parent]]
+        if not roots:
+            break
+        covered = _covered_shares(tree, projections, reach_radii, [np.isin(owner, subtrees[b]) for b in roots],
+                                  by=alive[owner]).min(axis=1)
+        below = covered - removal_cover[roots]
+        pick = int(np.argmin(below))
+        if below[pick] >= 0:
+            break
+        alive[roots[pick]] = True
+        restored += 1
+    return alive, restored
 
 
 def unreproduced_inner_branches(tree: VesselTree, projections: Sequence[Projection],
@@ -572,23 +653,34 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     if support_points_mm is not None and len(support_points_mm):
         bridge = SupportBridge(np.asarray(support_points_mm, dtype=np.float64), lattice, settings.tree.max_bridge_mm)
 
-    def fitted_and_pruned(volume: np.ndarray) -> tuple[VesselTree, TreeBuild, int, int]:
+    def fitted_and_pruned(volume: np.ndarray) -> tuple[VesselTree, TreeBuild, int, int, int]:
         tree_settings = settings.tree
         if own is not None:  # the correspondences' tubes: phantom pieces among the parts (module notes)
             tree_settings = replace(tree_settings, skeleton=replace(tree_settings.skeleton,
                                                                     join_order=settings.correspondence_join_order))
-        tree, tree_build = hull_tree(volume, lattice, projections, masks, support_bridge=bridge,
-                                     settings=tree_settings)
-        tree, pruned = prune_explained_branches(tree, projections, settings.explained_share,
-                                                settings.explained_reach_radii)
-        unreproduced = 0
+        built, tree_build = hull_tree(volume, lattice, projections, masks, support_bridge=bridge,
+                                      settings=tree_settings)
+        tree, kept = _explained_pruning(built, projections, settings.explained_share, settings.explained_reach_radii)
+        explained_kept = np.isin(np.arange(built.n_branches), kept)
         if own is not None:  # the correspondences made the volume: their own matchings judge its branches
-            tree, unreproduced = prune_unreproduced_branches(
+            tree, still = _unreproduced_pruning(
                 tree, projections, own, nearest, tolerance_mm=settings.reproduced_mm, share=settings.reproduced_share,
                 explained=settings.unreproduced_explained, reach_radii=settings.explained_reach_radii)
-        return tree, tree_build, pruned, unreproduced
+            kept = [kept[k] for k in still]
+        alive = np.isin(np.arange(built.n_branches), kept)
+        pruned, unreproduced = int((~explained_kept).sum()), int((explained_kept & ~alive).sum())
+        restored = 0
+        if settings.restore_uncovered and not alive.all():
+            # each pruned branch stays out while the kept tree covers it as its rule asked (notes)
+            removal_cover = np.where(explained_kept, settings.unreproduced_explained,
+                                     np.nextafter(settings.explained_share, np.inf))
+            alive, restored = restore_uncovered_branches(built, alive, removal_cover, projections,
+                                                         settings.explained_reach_radii)
+            if restored:
+                tree = _kept(built, alive)
+        return tree, tree_build, pruned, unreproduced, restored
 
-    tree, tree_build, pruned, unreproduced = fitted_and_pruned(initial)
+    tree, tree_build, pruned, unreproduced, restored = fitted_and_pruned(initial)
     tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     stretch_points = inner_removed = rebuilds = 0
     while own is not None and rebuilds < settings.stretch_rounds:  # ... and the stretches inside branches
@@ -608,8 +700,9 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         stretch_points += int((stretches & ~inner).sum())
         inner_removed += len(np.unique(tree.points()[2][inner]))
         rebuilds += 1  # out of the tubes, and the tree built again through the hull from the rest
-        tree, tree_build, more_pruned, more_unreproduced = fitted_and_pruned(rest)
+        tree, tree_build, more_pruned, more_unreproduced, more_restored = fitted_and_pruned(rest)
         pruned, unreproduced = pruned + more_pruned, unreproduced + more_unreproduced
+        restored += more_restored
         if rebuilds < settings.stretch_rounds:  # judged again in the next round
             tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
@@ -619,14 +712,15 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     timings["tree"] = time.perf_counter() - start
     say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed, "
-        f"{unreproduced} that the views' own matchings do not reproduce, {stretch_points} points of stretches "
-        f"they contradict, {inner_removed} branches that carry others; {rebuilds} rebuilds)")
+        f"{unreproduced} that the views' own matchings do not reproduce, {restored} of these put back, "
+        f"{stretch_points} points of stretches they contradict, {inner_removed} branches that carry others; "
+        f"{rebuilds} rebuilds)")
 
     start = time.perf_counter()
     lumen = tree_lumen_points(tree, lattice, settings.lumen_margin_steps * lattice.spacing_mm)
     timings["lumen"] = time.perf_counter() - start
     build = ModelBuild(pairs=pairs, matched_share=shares, skeleton_pixels=skeleton_pixels, explained_removed=pruned,
                        unreproduced_removed=unreproduced, stretch_points_removed=stretch_points,
-                       inner_removed=inner_removed, rebuilds=rebuilds, tree_build=tree_build,
+                       inner_removed=inner_removed, rebuilds=rebuilds, restored=restored, tree_build=tree_build,
                        timings_s=timings)
     return lumen, tree, build
