@@ -161,7 +161,7 @@ def _spurs(chains: list[list[int]], degree: np.ndarray, rc: np.ndarray, half_wid
     return np.array(drop, dtype=np.int64)
 
 
-def centerline_graph(mask: np.ndarray, *, spur_widths: float = 2.0, spur_px: float = 2.0, spur_rounds: int = 2,
+def centerline_graph(mask: np.ndarray, *, spur_widths: float = 1.5, spur_px: float = 2.0, spur_rounds: int = 2,
                      tangent_px: int = 3) -> CenterlineGraph2D:
     """The centerline graph of a binary mask (module notes).
 
