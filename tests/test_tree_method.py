@@ -59,6 +59,24 @@ def test_the_2d_graph_of_a_y_has_three_chains_meeting_at_one_junction_with_their
         assert abs(np.median(graph.half_width_px[inner]) - expected) <= 0.6
 
 
+def test_a_short_side_branch_off_a_wide_vessel_is_a_chain_and_a_shorter_stub_a_spur():
+    # a trunk 12 px wide (its half-width at the junction 5.82 px: the distance transform less half
+    # a pixel) and a side branch 3 px wide: an end chain is a spur below 1.5 half-widths plus 2 px,
+    # 10.7 px here; a side branch 13 px long stays (under two half-widths plus 2 px, 13.6, the bound
+    # before 2026-12-05, it went), one 9 px long goes
+    shape = (80, 160)
+    trunk = _disk_line(shape, (10, 40), (150, 40), 6.0)
+    for length, kept in ((13, True), (9, False)):
+        graph = centerline_graph(trunk | _disk_line(shape, (80, 40), (80, 40 - length), 1.5))
+        junction = int(np.argmin(np.abs(graph.uv_px - [80, 40]).sum(axis=1)))
+        bound = 1.5 * graph.half_width_px[junction] + 2.0
+        assert abs(graph.half_width_px[junction] - 5.82) < 0.01
+        side = [e for e, c in enumerate(graph.chains) if graph.uv_px[c, 1].min() < 34]
+        assert bool(side) == kept
+        if kept:
+            assert bound < graph.chain_length_px(side[0]) < 2.0 * graph.half_width_px[junction] + 2.0
+
+
 def test_a_diagonal_staircase_is_one_chain_not_a_string_of_junctions():
     mask = _disk_line((100, 100), (10, 15), (90, 70), 2.0)
     graph = centerline_graph(mask)
