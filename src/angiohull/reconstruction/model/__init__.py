@@ -156,23 +156,17 @@ def _view_data(projection: Projection, mask: np.ndarray,
                     focal_px=float(max(projection.focal_lengths_px)))
 
 
-def _without(tree: VesselTree, leaf: int) -> VesselTree:
-    """The tree without leaf branch ``leaf`` (indices after it shift down by one)."""
-    branches = []
-    for i, b in enumerate(tree.branches):
-        if i == leaf:
-            continue
-        parent = b.parent if b.parent is None or b.parent < leaf else b.parent - 1
-        branches.append(Branch(b.points_mm, b.radius_mm, parent, b.parent_point, b.name))
-    return VesselTree(tuple(branches))
-
-
 def _kept(tree: VesselTree, alive: np.ndarray) -> VesselTree:
     """The tree of the branches where ``alive`` ((B,) bool) holds, in their order (every kept
     branch's parent kept)."""
     index = np.cumsum(alive) - 1
     return VesselTree(tuple(Branch(b.points_mm, b.radius_mm, None if b.parent is None else int(index[b.parent]),
                                    b.parent_point, b.name) for b, keep in zip(tree.branches, alive) if keep))
+
+
+def _without(tree: VesselTree, leaf: int) -> VesselTree:
+    """The tree without leaf branch ``leaf`` (indices after it shift down by one)."""
+    return _kept(tree, np.arange(tree.n_branches) != leaf)
 
 
 def _subtrees(tree: VesselTree) -> list[np.ndarray]:
@@ -407,13 +401,14 @@ def restore_uncovered_branches(tree: VesselTree, alive: np.ndarray, removal_cove
     alive = np.array(alive, dtype=bool)
     removal_cover = np.asarray(removal_cover, dtype=float)
     subtrees, owner = _subtrees(tree), tree.points()[2]
+    pairs = _DiscPairs(tree, projections, reach_radii).current()  # the tree stays whole: searched once
     restored = 0
     while True:
         roots = [b for b in range(1, tree.n_branches) if not alive[b] and alive[tree.branches[b].parent]]
         if not roots:
             break
         covered = _covered_shares(tree, projections, reach_radii, [np.isin(owner, subtrees[b]) for b in roots],
-                                  by=alive[owner]).min(axis=1)
+                                  by=alive[owner], pairs=pairs).min(axis=1)
         below = covered - removal_cover[roots]
         pick = int(np.argmin(below))
         if below[pick] >= 0:
