@@ -333,6 +333,7 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
                                  "not_reproduced_by_the_matchings": int(build.unreproduced_removed),
                                  "carrying_others_not_reproduced": int(build.inner_removed)},
             "pruned_branches_put_back": int(build.restored),
+            "unexplained_pixels_matched_again": int(build.rematched_pixels),
             "contradicted_stretch_points_removed": int(build.stretch_points_removed),
             "rebuilds": int(build.rebuilds),
             "timings_s": {k: float(v) for k, v in build.timings_s.items()},

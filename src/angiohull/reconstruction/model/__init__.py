@@ -44,6 +44,16 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    this ``stretch_rounds`` times at most, each round on the tree the last one rebuilt, while
    something goes (3 by default: each round costs a tree build, the support hull's graph built
    once for all; 3 rounds gain 0.2-1.1 Dice3D points over one on two views, docs/tree-method.md).
+   Then, with two views, the skeleton pixels of each view that no tree point explains (its
+   projected disc, plus a pixel, does not hold them) are matched into the other view again, the
+   explained ones pinned to the tree points that explain them (:func:`.matching.anchored_match`:
+   the partner's distance to the other view's skeleton free, the other view showing the vessel
+   wider free; a match kept where matched neighbours join it to a pinned pixel), and the tree is
+   built again from its own tubes and the new ones (``rematch_rounds`` times at most, while at
+   least ``rematch_min_pixels`` of a view's pixels join): where one view shows a vessel alone and
+   the other shows it merged with another (an end folded back along its parent, two vessels side
+   by side), the first matching's radius term sent it to a wrong vessel, a phantom the prunings
+   took, and its pixels were left with nothing.
    The builds of these rounds fit their trees once; the final tree is then fitted once more
    (:func:`..vessel_tree.refit_tree`, ``TreeSettings.fit_passes``; the pass in every round's
    build instead moved the rounds' choices more than it gained, docs/tree-method.md), where a
@@ -62,6 +72,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 from scipy import ndimage as ndi
+from scipy.spatial import cKDTree
 
 from ...errors import ReconstructionError
 from ...geometry import Projection
@@ -69,7 +80,7 @@ from ...tree import Branch, VesselTree
 from ..cube import Lattice
 from ..vessel_tree import TREE_SETTINGS, SupportBridge, TreeBuild, TreeSettings, hull_tree, refit_tree
 from .graph2d import CenterlineGraph2D, centerline_graph
-from .matching import MATCH_SETTINGS, MatchSettings, ViewData, mask_core, match_pixels
+from .matching import MATCH_SETTINGS, MatchSettings, ViewData, anchored_match, mask_core, match_pixels
 from .tubes import lattice_points_in_tubes
 
 __all__ = ["ModelSettings", "MODEL_SETTINGS", "ModelBuild", "model_tree", "centerline_graph", "CenterlineGraph2D",
@@ -99,6 +110,8 @@ class ModelSettings:
     claim_rounds: int = 2  # matchings again with each view's pixels claimed by the other's matching
     correspondence_join_order: str = "largest"  # the volume of step 3's tubes: its parts join largest first (notes)
     restore_uncovered: bool = True  # a pruned branch the kept tree no longer covers as its rule asked comes back (notes)
+    rematch_rounds: int = 1  # two views: pixels the tree leaves unexplained matched again, anchored (notes), ...
+    rematch_min_pixels: int = 5  # ... while at least this many of a view's join the tree, each time built again
 
 
 MODEL_SETTINGS = ModelSettings()
@@ -117,8 +130,9 @@ class ModelBuild:
     unreproduced_removed: int = 0  # branches removed because the views' own matchings do not reproduce them
     stretch_points_removed: int = 0  # points of contradicted, covered stretches inside branches (tree built again)
     inner_removed: int = 0  # branches with children taken out of the tubes as unreproduced (tree built again)
-    rebuilds: int = 0  # times the tree was built again after stretches and such branches went
+    rebuilds: int = 0  # times the tree was built again (stretches and such branches out, or pixels matched again)
     restored: int = 0  # pruned branches put back because what covered them went too
+    rematched_pixels: int = 0  # skeleton pixels nothing explained, matched again anchored to the tree (tree built again)
 
 
 def _viewing_direction(projection: Projection) -> np.ndarray:
@@ -562,25 +576,16 @@ def _correspondence_volume(projections: Sequence[Projection], masks: Sequence[np
             # from the second round: B's 3D point per skeleton pixel, from B's own matching into A
             claims = previous[(b, a)][0] if (b, a) in previous else None
             results[(a, b)] = match_pixels(views[a], views[b], others, settings.match, claims, caches[(a, b)])
-    starts, ends, r0, r1, shares = [], [], [], [], []
+    tubes, shares = [], []
     for a, b in pairs:
         points, radii, parent = results[(a, b)]
         shares.append(float(np.isfinite(radii).mean()) if len(radii) else 0.0)
-        # a tube from each matched pixel to its matched neighbour in the forest, a ball at each
-        child = np.flatnonzero((parent >= 0) & np.isfinite(radii))
-        child = child[np.isfinite(radii[parent[child]])]
-        near = np.linalg.norm(points[child] - points[parent[child]], axis=1) <= settings.max_segment_mm
-        child = child[near]
-        ok = np.flatnonzero(np.isfinite(radii))
-        starts += [points[child], points[ok]]
-        ends += [points[parent[child]], points[ok]]
-        r0 += [radii[child], radii[ok]]
-        r1 += [radii[parent[child]], radii[ok]]
+        tubes.append(_matched_tubes(points, radii, parent, settings.max_segment_mm))
     timings["correspondence"] = time.perf_counter() - start
     say("correspondence: " + ", ".join(f"view {a} -> {b}: {s:.0%} matched" for (a, b), s in zip(pairs, shares)))
 
     start = time.perf_counter()
-    a, b, r0, r1 = (np.concatenate(x) for x in (starts, ends, r0, r1))
+    a, b, r0, r1 = (np.concatenate(x) for x in zip(*tubes))
     if len(a) == 0:
         raise ReconstructionError("the tree method found no correspondence between the views' centerlines; "
                                   "check the calibration and that the masks show the same vessels")
@@ -590,7 +595,45 @@ def _correspondence_volume(projections: Sequence[Projection], masks: Sequence[np
     for a, b in pairs:
         own[a] = results[(a, b)][0]
     return (initial, tuple(pairs), tuple(shares), tuple(v.graph.n_pixels for v in views), own,
-            [v.nearest_skeleton for v in views])
+            [v.nearest_skeleton for v in views], views)
+
+
+def _matched_tubes(points: np.ndarray, radii: np.ndarray, parent: np.ndarray, max_segment_mm: float,
+                   new: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(starts, ends, start radii, end radii) of a matching's tubes: from each matched pixel to its
+    matched neighbour in the forest (at most ``max_segment_mm`` apart), and a ball at each matched
+    pixel; with ``new`` ((P,) bool), only the tubes that touch a new pixel and the new pixels' balls."""
+    matched = np.isfinite(radii)
+    child = np.flatnonzero((parent >= 0) & matched)
+    child = child[matched[parent[child]]]
+    child = child[np.linalg.norm(points[child] - points[parent[child]], axis=1) <= max_segment_mm]
+    ball = np.flatnonzero(matched)
+    if new is not None:
+        child, ball = child[new[child] | new[parent[child]]], np.flatnonzero(new)
+    return (np.concatenate([points[child], points[ball]]), np.concatenate([points[parent[child]], points[ball]]),
+            np.concatenate([radii[child], radii[ball]]), np.concatenate([radii[parent[child]], radii[ball]]))
+
+
+def explaining_points(tree: VesselTree, projection: Projection, pixels_uv: np.ndarray,
+                      slack_px: float = 1.0) -> np.ndarray:
+    """(P,) per pixel (``pixels_uv``, (P, 2)): the index in ``tree.points()`` of the nearest tree point
+    whose projected disc (its radius at its depth, plus ``slack_px``) holds the pixel, among the 16
+    nearest in the image; -1 where none does (nothing in the tree explains that pixel)."""
+    pixels_uv = np.asarray(pixels_uv, dtype=float).reshape(-1, 2)
+    points, radius, _ = tree.points()
+    out = np.full(len(pixels_uv), -1, dtype=np.int64)
+    if len(points) == 0 or len(pixels_uv) == 0:
+        return out
+    uv = projection.project(points)
+    radius_px = radius * max(projection.focal_lengths_px) / projection.depth_mm(points)
+    k = min(16, len(points))
+    distance, index = cKDTree(uv).query(pixels_uv, k=k)
+    distance, index = distance.reshape(len(pixels_uv), k), index.reshape(len(pixels_uv), k)
+    holds = distance <= radius_px[index] + slack_px
+    first = np.argmax(holds, axis=1)
+    found = holds.any(axis=1)
+    out[found] = index[found, first[found]]
+    return out
 
 
 
@@ -636,8 +679,8 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     masks = [np.asarray(m, dtype=bool) for m in masks]
     own = nearest = None
     if initial_points_mm is None:
-        initial, pairs, shares, skeleton_pixels, own, nearest = _correspondence_volume(projections, masks, lattice,
-                                                                                       settings, say, timings)
+        initial, pairs, shares, skeleton_pixels, own, nearest, views = _correspondence_volume(
+            projections, masks, lattice, settings, say, timings)
     else:
         initial, pairs, shares, skeleton_pixels = np.asarray(initial_points_mm, dtype=float), (), (), ()
     if len(initial) < 2:
@@ -701,6 +744,28 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         if rebuilds < settings.stretch_rounds:  # judged again in the next round
             tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
+    rematched = 0
+    for _ in range(settings.rematch_rounds if own is not None and len(projections) == 2 else 0):
+        # the pixels nothing in the tree explains, matched again anchored to it (module notes)
+        tubes = [_tube_segments(tree)]
+        points, radius, _ = tree.points()
+        for a, b in pairs:
+            which = explaining_points(tree, projections[a], views[a].graph.uv_px)
+            if (which < 0).sum() < settings.rematch_min_pixels:
+                continue
+            anchor = np.where((which >= 0)[:, None], points[np.maximum(which, 0)], np.nan)
+            got, got_radii, parent, new = anchored_match(views[a], views[b], anchor, radius[np.maximum(which, 0)],
+                                                         settings.match, settings.max_segment_mm)
+            if new.sum() >= settings.rematch_min_pixels:
+                tubes.append(_matched_tubes(got, got_radii, parent, settings.max_segment_mm, new))
+                rematched += int(new.sum())
+        if len(tubes) == 1:
+            break
+        tree, tree_build, more_pruned, more_unreproduced, more_restored = fitted_and_pruned(
+            lattice_points_in_tubes(*(np.concatenate(x) for x in zip(*tubes)), lattice))
+        pruned, unreproduced, restored = pruned + more_pruned, unreproduced + more_unreproduced, restored + more_restored
+        rebuilds += 1
+        tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     if own is not None and len(projections) < 3 and settings.tree.fit_passes > 1:  # fitted again (module notes)
         tree, tree_build = refit_tree(tree, projections, masks, build=tree_build, passes=settings.tree.fit_passes - 1,
                                       settings=settings.tree)
@@ -708,14 +773,15 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     timings["tree"] = time.perf_counter() - start
     say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed, "
         f"{unreproduced} that the views' own matchings do not reproduce, {restored} of these put back, "
-        f"{stretch_points} points of stretches they contradict, {inner_removed} branches that carry others; "
-        f"{rebuilds} rebuilds)")
+        f"{stretch_points} points of stretches they contradict, {inner_removed} branches that carry others, "
+        f"{rematched} unexplained pixels matched again; {rebuilds} rebuilds)")
 
     start = time.perf_counter()
     lumen = tree_lumen_points(tree, lattice, settings.lumen_margin_steps * lattice.spacing_mm)
     timings["lumen"] = time.perf_counter() - start
     build = ModelBuild(pairs=pairs, matched_share=shares, skeleton_pixels=skeleton_pixels, explained_removed=pruned,
                        unreproduced_removed=unreproduced, stretch_points_removed=stretch_points,
-                       inner_removed=inner_removed, rebuilds=rebuilds, restored=restored, tree_build=tree_build,
+                       inner_removed=inner_removed, rebuilds=rebuilds, restored=restored, rematched_pixels=rematched,
+                       tree_build=tree_build,
                        timings_s=timings)
     return lumen, tree, build

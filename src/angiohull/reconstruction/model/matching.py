@@ -52,21 +52,28 @@ Notation: view A's skeleton pixels are matched into view B; ``p`` is a pixel of 
 5. **Solve**: the costs are minimised exactly over a breadth-first spanning forest of A's pixel
    graph (cycles where vessels cross in A are cut): min-sum messages from the leaves to the
    roots, level by level for all pixels of a level at once, then the choices back down.
+6. **Anchored again** (:func:`anchored_match`): once a reconstruction stands, the pixels of A that
+   nothing in it explains are matched again with the others pinned to it, their partner's
+   distance to B's skeleton free and B showing the vessel wider than A free (an overlap in B only
+   widens it); a match is kept where matched neighbours join it to a pinned pixel.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
 from scipy import ndimage as ndi
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from ...geometry import Projection
 from ..epipolar import ray_directions
 from .graph2d import CenterlineGraph2D
 
-__all__ = ["MatchSettings", "MATCH_SETTINGS", "ViewData", "mask_core", "match_pixels", "triangulate_midpoint"]
+__all__ = ["MatchSettings", "MATCH_SETTINGS", "ViewData", "anchored_match", "mask_core", "match_pixels",
+           "triangulate_midpoint"]
 
 
 @dataclass(frozen=True)
@@ -411,3 +418,81 @@ def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), sett
     points[idx] = point[idx, state[idx]]
     radii[idx] = radius[idx, state[idx]]
     return points, radii, parent
+
+
+def anchored_match(a: ViewData, b: ViewData, anchor_mm: np.ndarray, anchor_radius_mm: np.ndarray,
+                   settings: MatchSettings = MATCH_SETTINGS, max_segment_mm: float = 2.0
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Match the *free* skeleton pixels of view ``a`` (those whose ``anchor_mm`` row is nan) into view
+    ``b`` again, the others pinned to their anchors (a reconstruction's 3D points that explain
+    them): the min-sum matching of :func:`match_pixels` over A's pixel graph, where a pinned pixel
+    has one candidate, its anchor moved onto its ray, at no cost, and a free pixel the candidates of
+    its epipolar line with two terms eased: its partner's distance to B's skeleton does not count
+    (where A shows a vessel nothing explains, B may show it merged with another vessel, off any
+    skeleton of its own), and B showing the vessel wider than A costs nothing (an overlap there
+    only widens it; the radius is then A's), narrower as before. A free pixel's match is kept only
+    where a path of matched neighbours (at most ``max_segment_mm`` apart in 3D) joins it to a pinned
+    pixel: what continues the reconstruction, not a vessel placed anew.
+
+    Returns
+    -------
+    points : (P, 3) array
+        The matched 3D point of each pixel of A (pinned ones at their anchors on their rays; nan
+        where unmatched or not joined).
+    radii : (P,) array
+        mm, nan likewise.
+    parent : (P,) array
+        Each pixel's neighbour towards its root in A's spanning forest (-1 at a root).
+    new : (P,) bool
+        The free pixels matched and joined.
+    """
+    g = a.graph
+    n_p = g.n_pixels
+    anchor_mm = np.asarray(anchor_mm, dtype=float).reshape(n_p, 3)
+    anchor_radius_mm = np.asarray(anchor_radius_mm, dtype=float).reshape(n_p)
+    points, radii = np.full((n_p, 3), np.nan), np.full(n_p, np.nan)
+    parent, levels = g.spanning_forest() if n_p else (np.zeros(0, dtype=np.int64), [])
+    free = np.isnan(anchor_mm[:, 0])
+    if n_p == 0 or b.graph.n_pixels == 0 or not free.any() or free.all():
+        return points, radii, parent, np.zeros(n_p, dtype=bool)
+    # the free pixels' candidates, without the partner's skeleton term, the radius term one-sided
+    samples = np.flatnonzero(free)
+    eased = replace(settings, radius_cap=0.0, partner_skeleton_px=np.inf)
+    c = _candidates(a, b, [], samples, eased)
+    pixel = samples[c.sample]
+    ra = g.half_width_px[pixel] * c.scale_a
+    rb = 2.0 * c.radius - ra  # B's radius (the candidates hold the two views' mean)
+    sigma = settings.radius_sigma_px * c.scale_a + settings.radius_sigma_rel * np.maximum(ra, rb)
+    unary_free = c.unary + np.where(rb < ra, np.minimum(((ra - rb) / sigma) ** 2, settings.radius_cap), 0.0)
+    radius_free = np.where(rb > ra, ra, c.radius)
+    # the pinned pixels: their anchors moved onto their rays
+    pinned = np.flatnonzero(~free)
+    rays = ray_directions(a.projection, g.uv_px[pinned])
+    centre = a.projection.camera_centre_mm
+    on_ray = centre + np.einsum("ij,ij->i", anchor_mm[pinned] - centre, rays)[:, None] * rays
+    uv_b = np.rint(b.projection.project(on_ray)).astype(np.int64)
+    rows, cols = b.mask.shape
+    q_pinned = b.nearest_skeleton[np.clip(uv_b[:, 1], 0, rows - 1), np.clip(uv_b[:, 0], 0, cols - 1)]
+    sample = np.concatenate([pixel, pinned])
+    fields = (np.concatenate([c.q, np.maximum(q_pinned, 0)]), np.vstack([c.point, on_ray]),
+              np.concatenate([radius_free, anchor_radius_mm[pinned]]),
+              np.concatenate([unary_free, np.zeros(len(pinned))]),
+              np.concatenate([c.scale_a, a.projection.depth_mm(on_ray) / a.focal_px]))
+    order = np.lexsort((fields[3], sample))
+    sample = sample[order]
+    rank = np.arange(len(sample)) - np.searchsorted(sample, sample, side="left")
+    keep = rank < settings.max_candidates  # by pixel, cheapest first
+    cands = _Candidates(sample[keep], *(f[order][keep] for f in fields))
+    got, got_radii, parent = match_pixels(a, b, [], settings, None,
+                                          {"candidates": cands, "parent": parent, "levels": levels})
+    matched = np.isfinite(got_radii)
+    # joined to a pinned pixel through matched neighbours
+    child = np.flatnonzero((parent >= 0) & matched)
+    child = child[matched[parent[child]]]
+    child = child[np.linalg.norm(got[child] - got[parent[child]], axis=1) <= max_segment_mm]
+    links = coo_matrix((np.ones(len(child)), (child, parent[child])), shape=(n_p, n_p))
+    _, component = connected_components(links, directed=False)
+    joined = np.isin(component, component[~free & matched])
+    keep_pixel = matched & (~free | joined)
+    points[keep_pixel], radii[keep_pixel] = got[keep_pixel], got_radii[keep_pixel]
+    return points, radii, parent, free & keep_pixel
