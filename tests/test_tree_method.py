@@ -245,6 +245,51 @@ def test_pixels_nothing_explains_are_matched_again_anchored_where_the_other_view
     assert np.allclose(radii[pinned], 1.2)
 
 
+def _y_with_second_branch_along_the_second_views_rays(shift_mm=8.0):
+    """The Y plus a phantom: its second branch moved 8 mm along the second view's rays (toward the
+    source), so that the second view sees the two as one vessel and the first view apart."""
+    y, projections = _y(), _views()
+    second = y.branches[1].points_mm
+    rays = projections[1].camera_centre_mm - second
+    phantom = second + shift_mm * rays / np.linalg.norm(rays, axis=1)[:, None]
+    tree = VesselTree(y.branches + (Branch(phantom, 1.1, parent=0, parent_point=y.branches[1].parent_point,
+                                           name="phantom"),))
+    return tree, projections
+
+
+@pytest.mark.parametrize("only", [False, True])
+def test_explaining_points_match_a_pixel_by_pixel_reference(only):
+    from angiohull.reconstruction.model import explaining_points
+
+    tree, projections = _y_with_second_branch_along_the_second_views_rays()
+    points, radius, owner = tree.points()
+    by = owner != 2 if only else None
+    rows, cols = np.nonzero(_masks(_y(), projections)[0])
+    pixels = np.column_stack([cols, rows]).astype(float)[::7]
+    got = explaining_points(tree, projections[0], pixels, by=by)
+    uv = projections[0].project(points)
+    disc = radius * max(projections[0].focal_lengths_px) / projections[0].depth_mm(points) + 1.0
+    for pixel, index in zip(pixels, got):
+        distance = np.linalg.norm(uv - pixel, axis=1)
+        holds = (distance <= disc) & (True if by is None else by)
+        if not holds.any():
+            assert index == -1
+        else:  # the nearest point that holds it (ties: the same distance)
+            assert index >= 0 and holds[index] and distance[index] == pytest.approx(distance[holds].min())
+    assert (got >= 0).mean() > 0.9  # the mask's pixels: the Y explains nearly all of them
+
+
+def test_a_branch_only_one_view_needs_is_redundant_and_the_vessel_it_mirrors_too():
+    from angiohull.reconstruction.model import redundant_branches
+
+    tree, projections = _y_with_second_branch_along_the_second_views_rays()
+    reach = MODEL_SETTINGS.explained_reach_radii
+    # the second view shows the phantom on the second branch: each covers the other there, and in
+    # the first view neither is covered; the trunk is needed in both
+    assert redundant_branches(tree, projections, 0, 1, 0.9, 0.9, reach).tolist() == [1, 2]
+    assert redundant_branches(tree, projections, 1, 0, 0.9, 0.9, reach).tolist() == []
+
+
 # -- pruning the branches the rest of the tree explains --------------------------------------------
 def _with_phantoms(tail_mm: float = 0.0):
     """The Y plus a phantom chain hanging off the trunk: a branch along the trunk's last 20 mm, 0.3 mm
@@ -773,6 +818,7 @@ def test_the_report_of_a_tree_reconstruction_names_its_pairs_prunings_and_stages
     assert isinstance(block["contradicted_stretch_points_removed"], int)
     assert isinstance(block["pruned_branches_put_back"], int) and block["pruned_branches_put_back"] >= 0
     assert isinstance(block["unexplained_pixels_matched_again"], int) and block["unexplained_pixels_matched_again"] >= 0
+    assert isinstance(block["redundant_branches_replaced"], int) and block["redundant_branches_replaced"] >= 0
     assert block["rebuilds"] in range(MODEL_SETTINGS.stretch_rounds + MODEL_SETTINGS.rematch_rounds + 1)
     assert set(block["timings_s"]) >= {"centerlines_2d", "correspondence", "tubes", "tree", "lumen"}
 

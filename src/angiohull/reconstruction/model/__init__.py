@@ -53,7 +53,12 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    least ``rematch_min_pixels`` of a view's pixels join): where one view shows a vessel alone and
    the other shows it merged with another (an end folded back along its parent, two vessels side
    by side), the first matching's radius term sent it to a wrong vessel, a phantom the prunings
-   took, and its pixels were left with nothing.
+   took, and its pixels were left with nothing. Free too are the pixels that only branches the
+   other view finds redundant explain (:func:`redundant_branches`: their own points covered there
+   by the rest at least ``rematch_redundant_share``, in this view less than ``explained_share``:
+   a phantom standing in for a vessel this view shows alone); such a branch leaves the rebuild's
+   tubes when at least ``rematch_replace_share`` of its freed pixels join elsewhere, and stays,
+   its pixels' new matches dropped, when not.
    The builds of these rounds fit their trees once; the final tree is then fitted once more
    (:func:`..vessel_tree.refit_tree`, ``TreeSettings.fit_passes``; the pass in every round's
    build instead moved the rounds' choices more than it gained, docs/tree-method.md), where a
@@ -112,6 +117,8 @@ class ModelSettings:
     restore_uncovered: bool = True  # a pruned branch the kept tree no longer covers as its rule asked comes back (notes)
     rematch_rounds: int = 1  # two views: pixels the tree leaves unexplained matched again, anchored (notes), ...
     rematch_min_pixels: int = 5  # ... while at least this many of a view's join the tree, each time built again
+    rematch_redundant_share: float = 0.9  # ... also those only branches the other view finds redundant explain (notes):
+    rematch_replace_share: float = 0.5  # ... such a branch leaves the rebuild when this share of its freed pixels join
 
 
 MODEL_SETTINGS = ModelSettings()
@@ -133,6 +140,7 @@ class ModelBuild:
     rebuilds: int = 0  # times the tree was built again (stretches and such branches out, or pixels matched again)
     restored: int = 0  # pruned branches put back because what covered them went too
     rematched_pixels: int = 0  # skeleton pixels nothing explained, matched again anchored to the tree (tree built again)
+    replaced_branches: int = 0  # branches redundant in one view whose pixels in the other were matched again elsewhere
 
 
 def _viewing_direction(projection: Projection) -> np.ndarray:
@@ -615,10 +623,11 @@ def _matched_tubes(points: np.ndarray, radii: np.ndarray, parent: np.ndarray, ma
 
 
 def explaining_points(tree: VesselTree, projection: Projection, pixels_uv: np.ndarray,
-                      slack_px: float = 1.0) -> np.ndarray:
+                      slack_px: float = 1.0, by: np.ndarray | None = None) -> np.ndarray:
     """(P,) per pixel (``pixels_uv``, (P, 2)): the index in ``tree.points()`` of the nearest tree point
     whose projected disc (its radius at its depth, plus ``slack_px``) holds the pixel, among the 16
-    nearest in the image; -1 where none does (nothing in the tree explains that pixel)."""
+    nearest in the image; -1 where none does (nothing in the tree explains that pixel). With ``by``
+    ((N,) bool over ``tree.points()``), only those points explain."""
     pixels_uv = np.asarray(pixels_uv, dtype=float).reshape(-1, 2)
     points, radius, _ = tree.points()
     out = np.full(len(pixels_uv), -1, dtype=np.int64)
@@ -626,6 +635,8 @@ def explaining_points(tree: VesselTree, projection: Projection, pixels_uv: np.nd
         return out
     uv = projection.project(points)
     radius_px = radius * max(projection.focal_lengths_px) / projection.depth_mm(points)
+    if by is not None:
+        radius_px = np.where(by, radius_px, -np.inf)
     k = min(16, len(points))
     distance, index = cKDTree(uv).query(pixels_uv, k=k)
     distance, index = distance.reshape(len(pixels_uv), k), index.reshape(len(pixels_uv), k)
@@ -635,6 +646,17 @@ def explaining_points(tree: VesselTree, projection: Projection, pixels_uv: np.nd
     out[found] = index[found, first[found]]
     return out
 
+
+
+def redundant_branches(tree: VesselTree, projections: Sequence[Projection], view: int, other: int, share: float,
+                       needed_share: float, reach_radii: float) -> np.ndarray:
+    """Indices of the branches whose own points the rest of the tree covers (:func:`explained_shares`'
+    measure) at least ``share`` in view ``other`` and less than ``needed_share`` in view ``view``: a
+    branch only ``view`` needs (a phantom standing in for a vessel there, or the true vessel whose
+    phantom covers it in ``other``)."""
+    owner = tree.points()[2]
+    cover = _covered_shares(tree, projections, reach_radii, [owner == k for k in range(tree.n_branches)])
+    return np.flatnonzero((cover[:, other] >= share) & (cover[:, view] < needed_share))
 
 
 def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice, *,
@@ -744,25 +766,38 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         if rebuilds < settings.stretch_rounds:  # judged again in the next round
             tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
-    rematched = 0
+    rematched = replaced = 0
     for _ in range(settings.rematch_rounds if own is not None and len(projections) == 2 else 0):
-        # the pixels nothing in the tree explains, matched again anchored to it (module notes)
-        tubes = [_tube_segments(tree)]
-        points, radius, _ = tree.points()
+        # the pixels nothing in the tree explains, or only branches the other view finds redundant,
+        # matched again anchored to it; such a branch goes where its pixels join elsewhere (notes)
+        tubes = []
+        points, radius, owner = tree.points()
+        drop = np.zeros(len(points), dtype=bool)
         for a, b in pairs:
-            which = explaining_points(tree, projections[a], views[a].graph.uv_px)
+            redundant = redundant_branches(tree, projections, a, b, settings.rematch_redundant_share,
+                                           settings.explained_share, settings.explained_reach_radii)
+            which_any = explaining_points(tree, projections[a], views[a].graph.uv_px)
+            which = explaining_points(tree, projections[a], views[a].graph.uv_px, by=~np.isin(owner, redundant))
             if (which < 0).sum() < settings.rematch_min_pixels:
                 continue
             anchor = np.where((which >= 0)[:, None], points[np.maximum(which, 0)], np.nan)
             got, got_radii, parent, new = anchored_match(views[a], views[b], anchor, radius[np.maximum(which, 0)],
                                                          settings.match, settings.max_segment_mm)
+            freed_from = np.where((which < 0) & (which_any >= 0), owner[np.maximum(which_any, 0)], -1)
+            for branch in redundant:
+                mine = freed_from == branch
+                if mine.any() and new[mine].mean() >= settings.rematch_replace_share:
+                    drop |= owner == branch
+                else:  # it stays, and so do its pixels' matches
+                    new &= ~mine
             if new.sum() >= settings.rematch_min_pixels:
                 tubes.append(_matched_tubes(got, got_radii, parent, settings.max_segment_mm, new))
                 rematched += int(new.sum())
-        if len(tubes) == 1:
+        if not tubes:
             break
+        replaced += len(np.unique(owner[drop]))
         tree, tree_build, more_pruned, more_unreproduced, more_restored = fitted_and_pruned(
-            lattice_points_in_tubes(*(np.concatenate(x) for x in zip(*tubes)), lattice))
+            lattice_points_in_tubes(*(np.concatenate(x) for x in zip(_tube_segments(tree, ~drop), *tubes)), lattice))
         pruned, unreproduced, restored = pruned + more_pruned, unreproduced + more_unreproduced, restored + more_restored
         rebuilds += 1
         tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
@@ -774,7 +809,7 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed, "
         f"{unreproduced} that the views' own matchings do not reproduce, {restored} of these put back, "
         f"{stretch_points} points of stretches they contradict, {inner_removed} branches that carry others, "
-        f"{rematched} unexplained pixels matched again; {rebuilds} rebuilds)")
+        f"{rematched} unexplained pixels matched again, replacing {replaced} branches; {rebuilds} rebuilds)")
 
     start = time.perf_counter()
     lumen = tree_lumen_points(tree, lattice, settings.lumen_margin_steps * lattice.spacing_mm)
@@ -782,6 +817,6 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     build = ModelBuild(pairs=pairs, matched_share=shares, skeleton_pixels=skeleton_pixels, explained_removed=pruned,
                        unreproduced_removed=unreproduced, stretch_points_removed=stretch_points,
                        inner_removed=inner_removed, rebuilds=rebuilds, restored=restored, rematched_pixels=rematched,
-                       tree_build=tree_build,
+                       replaced_branches=replaced, tree_build=tree_build,
                        timings_s=timings)
     return lumen, tree, build
