@@ -286,8 +286,9 @@ def test_a_branch_only_one_view_needs_is_redundant_and_the_vessel_it_mirrors_too
     reach = MODEL_SETTINGS.explained_reach_radii
     # the second view shows the phantom on the second branch: each covers the other there, and in
     # the first view neither is covered; the trunk is needed in both
-    assert redundant_branches(tree, projections, 0, 1, 0.9, 0.9, reach).tolist() == [1, 2]
-    assert redundant_branches(tree, projections, 1, 0, 0.9, 0.9, reach).tolist() == []
+    first, second = redundant_branches(tree, projections, [(0, 1), (1, 0)], 0.9, 0.9, reach)
+    assert first.tolist() == [1, 2]
+    assert second.tolist() == []
 
 
 # -- pruning the branches the rest of the tree explains --------------------------------------------

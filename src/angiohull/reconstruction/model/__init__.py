@@ -647,16 +647,16 @@ def explaining_points(tree: VesselTree, projection: Projection, pixels_uv: np.nd
     return out
 
 
-
-def redundant_branches(tree: VesselTree, projections: Sequence[Projection], view: int, other: int, share: float,
-                       needed_share: float, reach_radii: float) -> np.ndarray:
-    """Indices of the branches whose own points the rest of the tree covers (:func:`explained_shares`'
-    measure) at least ``share`` in view ``other`` and less than ``needed_share`` in view ``view``: a
-    branch only ``view`` needs (a phantom standing in for a vessel there, or the true vessel whose
-    phantom covers it in ``other``)."""
+def redundant_branches(tree: VesselTree, projections: Sequence[Projection], view_pairs: Sequence[tuple[int, int]],
+                       share: float, needed_share: float, reach_radii: float) -> list[np.ndarray]:
+    """Per (view, other) pair of ``view_pairs``: the indices of the branches whose own points the rest
+    of the tree covers (:func:`explained_shares`' measure) at least ``share`` in view ``other`` and
+    less than ``needed_share`` in view ``view``: a branch only ``view`` needs (a phantom standing in
+    for a vessel there, or the true vessel whose phantom covers it in ``other``). The covers are
+    measured once for every pair."""
     owner = tree.points()[2]
     cover = _covered_shares(tree, projections, reach_radii, [owner == k for k in range(tree.n_branches)])
-    return np.flatnonzero((cover[:, other] >= share) & (cover[:, view] < needed_share))
+    return [np.flatnonzero((cover[:, other] >= share) & (cover[:, view] < needed_share)) for view, other in view_pairs]
 
 
 def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice, *,
@@ -773,9 +773,9 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         tubes = []
         points, radius, owner = tree.points()
         drop = np.zeros(len(points), dtype=bool)
-        for a, b in pairs:
-            redundant = redundant_branches(tree, projections, a, b, settings.rematch_redundant_share,
-                                           settings.explained_share, settings.explained_reach_radii)
+        redundant_per_pair = redundant_branches(tree, projections, pairs, settings.rematch_redundant_share,
+                                                settings.explained_share, settings.explained_reach_radii)
+        for (a, b), redundant in zip(pairs, redundant_per_pair):
             which_any = explaining_points(tree, projections[a], views[a].graph.uv_px)
             which = explaining_points(tree, projections[a], views[a].graph.uv_px, by=~np.isin(owner, redundant))
             if (which < 0).sum() < settings.rematch_min_pixels:
