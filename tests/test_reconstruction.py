@@ -162,6 +162,8 @@ def test_empty_hull_names_the_view_and_suggests_calibration():
     ("count", "1 masks"),
     ("shape", r"mask shape \(64, 64\) differs"),
     ("empty", "mask is empty"),
+    ("nan", r"view 0 \('view0'\): mask holds 100 non-finite values"),
+    ("text", "mask must be numeric"),
     ("ndim", "2D"),
     ("threshold", "threshold_px"),
     ("engine", "unknown engine"),
@@ -180,6 +182,10 @@ def test_bad_inputs_get_clear_errors(case, match):
         args = ([p], [np.ones((64, 64))])
     elif case == "empty":
         args = ([p], [np.zeros((128, 128))])
+    elif case == "nan":  # a probability map with NaN where it is undefined: not vessel, not background
+        args = ([p], [np.where(m, np.nan, 0.0)])
+    elif case == "text":
+        args = ([p], [np.full((128, 128), "1")])
     elif case == "ndim":
         args = ([p], [np.ones((128, 128, 3))])
     elif case == "threshold":

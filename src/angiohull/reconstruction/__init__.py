@@ -127,6 +127,12 @@ def _check_inputs(projections: Sequence[Projection], masks: Sequence[np.ndarray]
                 f"view {i} ({name!r}): mask shape {array.shape} differs from the projection's image shape "
                 f"{projection.image_shape} (rows, cols)"
             )
+        if not (np.issubdtype(array.dtype, np.number) or array.dtype == bool):
+            raise ReconstructionError(f"view {i} ({name!r}): mask must be numeric or bool (nonzero = vessel), "
+                                      f"got dtype {array.dtype}")
+        if np.issubdtype(array.dtype, np.inexact) and not np.isfinite(array).all():
+            raise ReconstructionError(f"view {i} ({name!r}): mask holds {int((~np.isfinite(array)).sum())} non-finite "
+                                      f"values (NaN or infinity); give a binary mask (nonzero = vessel)")
         array = array.astype(bool, copy=False)
         if not array.any():
             raise ReconstructionError(f"view {i} ({name!r}): mask is empty (no vessel pixel); nothing can be reconstructed")
@@ -176,7 +182,9 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     projections : sequence of Projection
         One per view, applied in this order.
     masks : sequence of (rows, cols) arrays
-        Nonzero = vessel; shape must equal the projection's ``image_shape``.
+        Nonzero = vessel (bool or numeric, every value finite: NaN or infinity is refused, as
+        :func:`angiohull.io.read_mask` refuses it in a file); shape must equal the projection's
+        ``image_shape``.
     resolution : int, optional, keyword-only
         K, lattice points per axis of the cube of interest (default: the preset's, 100 for
         ``"paper"`` as in the paper, 256 for ``"refined"``).
