@@ -11,10 +11,10 @@ from angiohull.io import read_points
 from angiohull.study import View, save_study
 
 
-def ball_study(folder, *, corrupt=None):
+def ball_study(folder, *, corrupt=None, primaries=(("ap", 0.0), ("lao90", 90.0))):
     """A ball of radius 10 mm at the isocentre seen by two perpendicular views, exact masks."""
     views = []
-    for name, primary in (("ap", 0.0), ("lao90", 90.0)):
+    for name, primary in primaries:
         carm = CArmGeometry(primary, 0.0, 1200.0, 800.0, (0.7, 0.7), (128, 128))
         p = carm.projection()
         v, u = np.mgrid[0:128, 0:128]
@@ -50,6 +50,23 @@ def test_reconstruct_writes_ply_report_and_figure(tmp_path, capsys):
     assert set(report["timings_s"]) >= {"cube", "carve", "centerlines"}
     assert np.linalg.norm(vessel, axis=1).max() < 10 * np.sqrt(2) + 1.5
     assert "reprojection Dice2D" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("second, apart, warned", [(90.0, 90.0, False), (15.0, 15.0, True), (170.0, 10.0, True),
+                                                   (30.0, 30.0, False)])
+def test_views_along_nearly_one_line_get_a_warning_and_the_report_their_angle(tmp_path, capsys, second, apart,
+                                                                               warned):
+    study = ball_study(tmp_path / "study", primaries=(("ap", 0.0), ("second", second)))
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(study), "-o", str(out), "-k", "20", "--no-centerlines", "--no-figure",
+                 "--no-tree", "--no-viewer", "-q"]) == 0
+    lines = [line for line in capsys.readouterr().err.splitlines() if "nearly one line" in line]
+    assert len(lines) == int(warned)
+    if warned:
+        assert lines[0].startswith("angiohull: warning:") and f"ap / second {apart:.0f}" in lines[0]
+    separation = json.loads((out / "report.json").read_text())["view_separation_deg"]
+    assert separation["pairs"]["ap / second"] == pytest.approx(apart, abs=1e-6)  # primaries about one axis
+    assert separation["warn_below"] == 25.0
 
 
 def test_reconstruct_without_centerlines_and_figure(tmp_path):

@@ -250,3 +250,17 @@ def test_every_storage_of_a_view_has_the_same_canonical_image():
             again = canonical_storage(stored)
             np.testing.assert_array_equal(again.apply_image(stored_image), reference_image)
             np.testing.assert_allclose(again.apply(stored).project(points), reference.project(points), atol=1e-9)
+
+
+@pytest.mark.parametrize("first, second", [("RAO 30 CAU 25", "LAO 45 CRA 20"), ("AP", "LAO 90"),
+                                           ("RAO 30 CAU 25", "LAO 150 CRA 15"), ("LAO 10 CRA 5", "LAO 10 CRA 5")])
+def test_the_angle_between_views_is_the_angle_between_their_detector_directions(first, second):
+    from angiohull.geometry import angle_between_views_deg
+
+    carms = [CArmGeometry(*parse_clinical_angles(v), 1200.0, 800.0, (0.35, 0.35), (512, 512)) for v in (first, second)]
+    expected = np.degrees(np.arccos(np.clip(carms[0].detector_direction() @ carms[1].detector_direction(), -1, 1)))
+    # the central ray runs from the source through the isocentre to the detector's centre
+    assert angle_between_views_deg(carms[0].projection(), carms[1].projection()) == pytest.approx(expected, abs=1e-6)
+    # a positive scale of the matrix changes nothing
+    scaled = Projection(3.0 * carms[1].projection().matrix, carms[1].projection().image_shape)
+    assert angle_between_views_deg(carms[0].projection(), scaled) == pytest.approx(expected, abs=1e-6)

@@ -320,6 +320,10 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
     message = workflow.agreement_warning(agreement, calibrated=options.calibrate)
     if message:
         warnings.warn(message, AgreementWarning, stacklevel=1)
+    separation = workflow.view_separation_deg(study.projections, study.names)
+    message = workflow.view_angle_warning(separation)
+    if message:
+        warnings.warn(message, InputWarning, stacklevel=1)
     what = f"{options.preset} preset" if options.method == "hull" else "tree method"
     progress(f"reconstructing {len(study.views)} views ({what}) with engine {options.engine}")
     result = workflow.reconstruct_study(study, options, progress=progress)
@@ -340,6 +344,7 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
     silhouettes = workflow.view_silhouettes(study, result)
     scores = workflow.json_safe(workflow.evaluation_scores(study, result, silhouettes)) if score else None
     report = workflow.build_report(study, result, options, silhouettes, scores)
+    report["view_separation_deg"] = {"pairs": separation, "warn_below": workflow.MIN_VIEW_SEPARATION_DEG}
     report["view_agreement"] = {"coverage": agreement, "min_coverage": workflow.AGREEMENT_MIN_COVERAGE,
                                 "disagreeing": [n for n, c in agreement.items() if c < workflow.AGREEMENT_MIN_COVERAGE],
                                 "after_calibration": calibration is not None}

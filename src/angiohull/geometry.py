@@ -31,6 +31,7 @@ __all__ = [
     "parse_clinical_angles",
     "format_clinical_angles",
     "cube_half_edge_mm",
+    "angle_between_views_deg",
     "ImageStorage",
     "canonical_storage",
 ]
@@ -383,6 +384,24 @@ def cube_half_edge_mm(projections: Iterable[Projection]) -> float:
     if not values:
         raise GeometryError("the cube of interest needs at least one view, got none")
     return max(values)
+
+
+def _central_ray(projection: Projection) -> np.ndarray:
+    """Unit direction (3,) from the source through the centre of the image."""
+    rows, cols = projection.image_shape
+    direction = np.linalg.solve(projection.matrix[:, :3], np.array([(cols - 1) / 2.0, (rows - 1) / 2.0, 1.0]))
+    direction /= np.linalg.norm(direction)
+    if not projection.in_front(projection.camera_centre_mm[None, :] + direction[None, :])[0]:
+        direction = -direction
+    return direction
+
+
+def angle_between_views_deg(first: Projection, second: Projection) -> float:
+    """The angle (degrees, 0-180) between the two views' central rays (from each source through the
+    centre of its image). Near 0 the views look along the same line, near 180 along opposite
+    lines (mirror images): either way the depth along it is poorly determined from the two."""
+    cosine = float(np.clip(_central_ray(first) @ _central_ray(second), -1.0, 1.0))
+    return float(np.degrees(np.arccos(cosine)))
 
 
 def stack_projections(projections: Sequence[Projection]) -> np.ndarray:

@@ -7,6 +7,7 @@ This sits above reconstruction and metrics (it reads nothing itself: the caller 
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
@@ -28,7 +29,7 @@ from .reconstruction.calibration import (AGREEMENT_MIN_COVERAGE, Calibration, ca
                                          view_coverage)
 from . import _validation as _v
 from .errors import AngiohullError, GeometryError, OutputError, QcaError, ReconstructionError, StudyError, ViewerError
-from .geometry import Projection
+from .geometry import Projection, angle_between_views_deg
 from .study import Study, View
 from .tree import VesselTree
 
@@ -37,6 +38,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from .tree.solid import SurfaceMesh
 
 __all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_agreement", "agreement_warning",
+           "view_separation_deg", "view_angle_warning", "MIN_VIEW_SEPARATION_DEG",
            "ambiguity_warning", "view_silhouettes", "evaluation_scores", "tree_evaluation_scores", "tree_summary",
            "build_report", "write_outputs", "ExtraOutput", "json_safe", "load_result_for_qca", "report_projections",
            "write_qca_outputs", "ResultFolder", "load_result_folder", "output_folder", "check_output_folder",
@@ -141,6 +143,32 @@ def agreement_warning(coverage: dict[str, float], *, calibrated: bool) -> str | 
     return (f"the views disagree ({which}): the hull of all views covers {listed} of each mask (below "
             f"{100 * AGREEMENT_MIN_COVERAGE:.0f} % means disagreement); the geometry may be off by pixels (try "
             f"--calibrate), or the masks may not show the same vessels")
+
+
+MIN_VIEW_SEPARATION_DEG = 25.0
+"""Views whose central rays are closer than this to parallel (or to opposite) give a warning."""
+
+
+def view_separation_deg(projections: Sequence[Projection], names: Sequence[str]) -> dict[str, float]:
+    """Per pair of views ("a / b"), how far their central rays are from lying along one line:
+    the angle between them, or 180 less it where that is smaller (degrees, 0-90)."""
+    out = {}
+    for i, j in itertools.combinations(range(len(projections)), 2):
+        angle = angle_between_views_deg(projections[i], projections[j])
+        out[f"{names[i]} / {names[j]}"] = round(min(angle, 180.0 - angle), 2)
+    return out
+
+
+def view_angle_warning(separation_deg: dict[str, float]) -> str | None:
+    """The warning to give when no pair of views is MIN_VIEW_SEPARATION_DEG apart (None when one is,
+    or with a single view)."""
+    if not separation_deg or max(separation_deg.values()) >= MIN_VIEW_SEPARATION_DEG:
+        return None
+    listed = ", ".join(f"{pair} {value:.0f}" for pair, value in separation_deg.items())
+    return (f"the views look along nearly one line (degrees from it: {listed}; under "
+            f"{MIN_VIEW_SEPARATION_DEG:.0f} for every pair): the depth along it is poorly determined, and the result "
+            f"with it (docs/tree-method.md measures how much); use views 30 degrees apart or more, and not nearly "
+            f"opposite (report.json: view_separation_deg)")
 
 
 def ambiguity_warning(calibration: Calibration, names: Sequence[str]) -> str | None:
