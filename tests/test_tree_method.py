@@ -815,7 +815,7 @@ def test_an_empty_hull_gives_an_empty_result_when_allowed():
     assert len(result.vessel_points_mm) == 0 and result.tree is None and result.tree_error == "the hull is empty"
 
 
-def test_the_report_of_a_tree_reconstruction_names_its_pairs_prunings_and_stages(tmp_path):
+def test_the_report_of_a_tree_reconstruction_names_its_pairs_prunings_and_stages(tmp_path, capsys):
     import json
 
     from angiohull.cli import main
@@ -827,9 +827,12 @@ def test_the_report_of_a_tree_reconstruction_names_its_pairs_prunings_and_stages
     study = save_study(tmp_path / "y", [View.from_carm(f"view{i}", m, c) for i, (m, c) in enumerate(zip(masks, carms))])
     out = tmp_path / "out"
     assert main(["reconstruct", str(study), "-o", str(out), "--method", "tree", "--no-figure", "--no-viewer",
-                 "--no-centerlines", "-q"]) == 0
+                 "--no-centerlines"]) == 0
     report = json.loads((out / "report.json").read_text())
     block = report["tree_method"]
+    # the progress line gives the time the tree took (the method's tree stage; it read 0.000 s before)
+    [line] = [line for line in capsys.readouterr().err.splitlines() if "] vessel tree:" in line]
+    assert line.endswith(f"({report['timings_s']['tree_tree']:.3f} s)") and report["timings_s"]["tree_tree"] > 0
     assert block["pairs"] == [["view0", "view1"], ["view1", "view0"]]
     # the final tree was fitted twice (vessel_tree.refit_tree), the rounds' trees once
     assert report["tree"]["build"]["fit_passes"] == 2 and report["tree"]["build"]["timings_s"]["refit"] > 0
