@@ -69,6 +69,16 @@ def test_views_along_nearly_one_line_get_a_warning_and_the_report_their_angle(tm
     assert separation["warn_below"] == 25.0
 
 
+def test_the_view_angle_warning_needs_every_pair_near_one_line_and_lists_six_pairs_at_most():
+    from angiohull.workflow import view_angle_warning
+
+    near = {f"v{i} / v{j}": 10.0 + i for i in range(5) for j in range(i + 1, 5)}  # 10 pairs
+    message = view_angle_warning(near)
+    assert "v0 / v1 10, v0 / v2 10" in message and message.count(" / ") == 6 and "and 4 more pairs" in message
+    assert view_angle_warning({**near, "v0 / v5": 25.0}) is None  # one pair far enough apart is enough
+    assert view_angle_warning({}) is None  # a single view
+
+
 def test_reconstruct_without_centerlines_and_figure(tmp_path):
     study = ball_study(tmp_path / "study")
     out = tmp_path / "out"

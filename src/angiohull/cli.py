@@ -331,8 +331,9 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
              f"(carving {result.timings_s['carve']:.3f} s)")
     if options.tree:
         if result.tree is not None:
+            tree_s = result.timings_s.get("tree", result.timings_s.get("tree_tree", 0.0))  # hull / tree method
             progress(f"vessel tree: {result.tree.n_branches} branches, {len(result.tree.bifurcations)} bifurcations, "
-                     f"{result.tree.length_mm:.1f} mm ({result.timings_s.get('tree', result.timings_s.get('tree_tree', 0.0)):.3f} s)")
+                     f"{result.tree.length_mm:.1f} mm ({tree_s:.3f} s)")
             skeleton = result.tree_build.skeleton
             if skeleton.longest_dropped_mm >= 10.0:  # the shortest branch the tree scores count
                 warnings.warn(f"the vessel tree leaves out {skeleton.parts_dropped} part(s) of the hull "

@@ -164,7 +164,9 @@ def view_angle_warning(separation_deg: dict[str, float]) -> str | None:
     or with a single view)."""
     if not separation_deg or max(separation_deg.values()) >= MIN_VIEW_SEPARATION_DEG:
         return None
-    listed = ", ".join(f"{pair} {value:.0f}" for pair, value in separation_deg.items())
+    pairs = list(separation_deg.items())
+    listed = ", ".join(f"{pair} {value:.0f}" for pair, value in pairs[:6])
+    listed += f" and {len(pairs) - 6} more pairs" if len(pairs) > 6 else ""
     return (f"the views look along nearly one line (degrees from it: {listed}; under "
             f"{MIN_VIEW_SEPARATION_DEG:.0f} for every pair): the depth along it is poorly determined, and the result "
             f"with it (docs/tree-method.md measures how much); use views 30 degrees apart or more, and not nearly "
