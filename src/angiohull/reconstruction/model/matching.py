@@ -398,13 +398,20 @@ def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), sett
 
     total = unary.copy()  # each pixel's cost plus its subtree's messages
     best_child = np.zeros((n_p, n_c + 1), dtype=np.int64)
-    transitions = cache.setdefault("transitions", {}) if cache is not None else {}
+    if cache is not None and "transitions" in cache:
+        transitions = cache["transitions"]
+    else:  # every level's at once (one batch of small arrays, not one per level), sliced per level below
+        below = levels[1:]
+        children = np.concatenate(below) if below else np.zeros(0, dtype=np.int64)
+        transitions = (transition(children, parent[children]),
+                       np.concatenate([[0], np.cumsum([len(level) for level in below])]).astype(np.int64))
+        if cache is not None:
+            cache["transitions"] = transitions
+    every, offset = transitions
     for depth in range(len(levels) - 1, 0, -1):
         level = levels[depth]
         up = parent[level]
-        if depth not in transitions:
-            transitions[depth] = transition(level, up)
-        joint = total[level][:, :, None] + transitions[depth]  # (n, child, parent)
+        joint = total[level][:, :, None] + every[offset[depth - 1]:offset[depth]]  # (n, child, parent)
         choice = np.argmin(joint, axis=1)
         best_child[level] = choice
         np.add.at(total, up, np.take_along_axis(joint, choice[:, None, :], axis=1)[:, 0])
