@@ -106,6 +106,31 @@ def test_the_mask_core_keeps_the_middle_half_of_a_bar_and_all_of_a_thin_one():
     assert np.flatnonzero(_view_data(projection, mask, 0.9).image[:35, middle].all(axis=1)).tolist() == [13, 14, 15]
 
 
+def test_the_mask_core_matches_a_disc_by_disc_reference_on_a_tree_s_masks():
+    from scipy import ndimage as ndi
+
+    from angiohull.reconstruction.model import _view_data
+
+    projection = _views()[1]
+    mask = _masks(_y(), [projection])[0] | _masks(_crossing(), [projection])[0]
+    view = _view_data(projection, mask, 0.5)
+    # reference: every skeleton pixel's disc drawn on the whole image, widest last
+    uv = view.graph.uv_px.astype(int)
+    radius = view.inside_px[uv[:, 1], uv[:, 0]]
+    radius = np.where(radius < 8.0, np.floor(2.0 * radius) / 2.0, np.floor(radius))
+    covering = np.zeros(mask.shape)
+    for k in np.argsort(radius, kind="stable"):
+        r = int(radius[k]) + 1
+        r0, c0 = max(uv[k, 1] - r, 0), max(uv[k, 0] - r, 0)
+        rows, cols = np.mgrid[r0:uv[k, 1] + r + 1, c0:uv[k, 0] + r + 1]
+        window = covering[r0:uv[k, 1] + r + 1, c0:uv[k, 0] + r + 1]
+        window[np.hypot(cols - uv[k, 0], rows - uv[k, 1])[:window.shape[0], :window.shape[1]] <= radius[k]] = radius[k]
+    half = np.where(covering > 0, covering - 0.5, view.graph.half_width_px[np.maximum(view.nearest_skeleton, 0)])
+    expected = mask & ((view.inside_px - 0.5 >= 0.5 * half) | (view.skeleton_px <= 1.0))
+    assert len(np.unique(radius)) > 4 and expected.sum() > 1000
+    np.testing.assert_array_equal(view.image.astype(bool), expected)
+
+
 def test_the_mask_core_takes_the_widest_disc_not_a_side_spur_of_the_skeleton():
     from types import SimpleNamespace
 

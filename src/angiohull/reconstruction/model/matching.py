@@ -157,10 +157,15 @@ def mask_core(mask: np.ndarray, graph: CenterlineGraph2D, inside_px: np.ndarray,
     radius = np.where(radius < 8.0, np.floor(2.0 * radius) / 2.0, np.floor(radius))  # levels 0.5 px apart, 1 px from 8
     covering = np.zeros(inside.shape)
     for level in np.unique(radius):  # ascending: a wider disc overwrites a narrower one
-        seeds = np.ones(inside.shape, dtype=bool)
         chosen = uv[radius >= level]
-        seeds[chosen[:, 1], chosen[:, 0]] = False
-        covering[ndi.distance_transform_edt(seeds) <= level] = level
+        # the discs lie within their centres' box grown by the level: the distance there is exact
+        reach = int(np.ceil(level)) + 1
+        low = np.maximum(chosen.min(axis=0) - reach, 0)
+        high = np.minimum(chosen.max(axis=0) + reach + 1, [inside.shape[1], inside.shape[0]])
+        seeds = np.ones((high[1] - low[1], high[0] - low[0]), dtype=bool)
+        seeds[chosen[:, 1] - low[1], chosen[:, 0] - low[0]] = False
+        part = covering[low[1]:high[1], low[0]:high[0]]
+        part[ndi.distance_transform_edt(seeds) <= level] = level
     half = np.where(covering > 0, covering - 0.5, graph.half_width_px[np.maximum(nearest_skeleton[box], 0)])
     core = np.zeros_like(mask)
     core[box] = mask[box] & ((inside - 0.5 >= fraction * half) | (skeleton_px[box] <= 1.0))
