@@ -419,7 +419,7 @@ def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), sett
         joint = total[level][:, :, None] + every[offset[depth - 1]:offset[depth]]  # (n, child, parent)
         choice = np.argmin(joint, axis=1)
         best_child[level] = choice
-        np.add.at(total, up, np.take_along_axis(joint, choice[:, None, :], axis=1)[:, 0])
+        np.add.at(total, up, joint.min(axis=1))  # the values at ``choice``
     state = np.zeros(n_p, dtype=np.int64)
     roots = levels[0]
     state[roots] = np.argmin(total[roots], axis=1)
