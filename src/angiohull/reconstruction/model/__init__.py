@@ -628,18 +628,34 @@ def explaining_points(tree: VesselTree, projection: Projection, pixels_uv: np.nd
     whose projected disc (its radius at its depth, plus ``slack_px``) holds the pixel, among the 16
     nearest in the image; -1 where none does (nothing in the tree explains that pixel). With ``by``
     ((N,) bool over ``tree.points()``), only those points explain."""
+    return _holding(_nearest_discs(tree, projection, pixels_uv), slack_px, by)
+
+
+def _nearest_discs(tree: VesselTree, projection: Projection, pixels_uv: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel the 16 nearest tree points in the image ((P, k) distances in px and indices), and
+    every tree point's projected radius (px): what :func:`explaining_points` reads, searched once
+    for several ``by``."""
     pixels_uv = np.asarray(pixels_uv, dtype=float).reshape(-1, 2)
     points, radius, _ = tree.points()
-    out = np.full(len(pixels_uv), -1, dtype=np.int64)
     if len(points) == 0 or len(pixels_uv) == 0:
-        return out
+        return np.zeros((len(pixels_uv), 0)), np.zeros((len(pixels_uv), 0), dtype=np.int64), np.zeros(len(points))
     uv = projection.project(points)
     radius_px = radius * max(projection.focal_lengths_px) / projection.depth_mm(points)
-    if by is not None:
-        radius_px = np.where(by, radius_px, -np.inf)
     k = min(16, len(points))
     distance, index = cKDTree(uv).query(pixels_uv, k=k)
-    distance, index = distance.reshape(len(pixels_uv), k), index.reshape(len(pixels_uv), k)
+    return distance.reshape(len(pixels_uv), k), index.reshape(len(pixels_uv), k), radius_px
+
+
+def _holding(discs: tuple[np.ndarray, np.ndarray, np.ndarray], slack_px: float,
+             by: np.ndarray | None = None) -> np.ndarray:
+    """:func:`explaining_points` from :func:`_nearest_discs`' search."""
+    distance, index, radius_px = discs
+    out = np.full(len(distance), -1, dtype=np.int64)
+    if index.shape[1] == 0:
+        return out
+    if by is not None:
+        radius_px = np.where(by, radius_px, -np.inf)
     holds = distance <= radius_px[index] + slack_px
     first = np.argmax(holds, axis=1)
     found = holds.any(axis=1)
@@ -776,8 +792,9 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         redundant_per_pair = redundant_branches(tree, projections, pairs, settings.rematch_redundant_share,
                                                 settings.explained_share, settings.explained_reach_radii)
         for (a, b), redundant in zip(pairs, redundant_per_pair):
-            which_any = explaining_points(tree, projections[a], views[a].graph.uv_px)
-            which = explaining_points(tree, projections[a], views[a].graph.uv_px, by=~np.isin(owner, redundant))
+            discs = _nearest_discs(tree, projections[a], views[a].graph.uv_px)  # searched once for both
+            which_any = _holding(discs, 1.0)
+            which = _holding(discs, 1.0, by=~np.isin(owner, redundant))
             if (which < 0).sum() < settings.rematch_min_pixels:
                 continue
             anchor = np.where((which >= 0)[:, None], points[np.maximum(which, 0)], np.nan)
