@@ -79,6 +79,18 @@ def test_the_view_angle_warning_needs_every_pair_near_one_line_and_lists_six_pai
     assert view_angle_warning({}) is None  # a single view
 
 
+def test_two_views_with_the_hull_get_a_note_pointing_to_the_tree_method(tmp_path, capsys):
+    from angiohull.workflow import two_view_hint
+
+    study = ball_study(tmp_path / "study")  # two views
+    assert main(["reconstruct", str(study), "-o", str(tmp_path / "out"), "-k", "20", "--no-centerlines",
+                 "--no-figure", "--no-tree", "--no-viewer"]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if "--method tree" in line]
+    assert len(notes) == 1 and "two views" in notes[0] and "phantom" in notes[0]
+    assert notes[0].endswith(two_view_hint(2, "hull"))
+    assert two_view_hint(2, "tree") is None and two_view_hint(3, "hull") is None and two_view_hint(1, "hull") is None
+
+
 def test_reconstruct_without_centerlines_and_figure(tmp_path):
     study = ball_study(tmp_path / "study")
     out = tmp_path / "out"

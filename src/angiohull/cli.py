@@ -324,6 +324,9 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
     message = workflow.view_angle_warning(separation)
     if message:
         warnings.warn(message, InputWarning, stacklevel=1)
+    hint = workflow.two_view_hint(len(study.views), options.method)
+    if hint:
+        progress(hint)
     what = f"{options.preset} preset" if options.method == "hull" else "tree method"
     progress(f"reconstructing {len(study.views)} views ({what}) with engine {options.engine}")
     result = workflow.reconstruct_study(study, options, progress=progress)
