@@ -159,3 +159,36 @@ def test_transformed_moves_points_and_keeps_radii():
     np.testing.assert_array_equal(moved.root.radius_mm, tree.root.radius_mm)
     with pytest.raises(TreeError, match="4x4"):
         tree.transformed(np.eye(3))
+
+
+# -- the fit's last smoothing: a quadratic fit along each branch -------------------------------------
+def test_the_quadratic_smoothing_keeps_a_bend_whose_gaussian_cuts_it_and_smooths_noise_as_its_formula_says():
+    from scipy import ndimage as ndi
+
+    from angiohull.reconstruction.vessel_tree import quadratic_smoothed
+
+    step, radius = 0.5, 5.0
+    s = np.arange(0.0, 20.0 + step / 2, step)  # 20 mm of a helix of radius 5 mm, a point every 0.5 mm
+    arc = np.column_stack([radius * np.cos(s / radius), radius * np.sin(s / radius), 0.3 * s])
+    inner = slice(7, -7)  # points the 15-point window reaches past neither end
+
+    def length(p):
+        return np.linalg.norm(np.diff(p[inner], axis=0), axis=1).sum()
+
+    true = length(arc)
+    gaussian = ndi.gaussian_filter1d(arc, 1.0, axis=0, mode="nearest")  # sigma 0.5 mm, the fit's before
+    # a Gaussian of sigma draws a circle of radius R in by exp(-sigma^2 / (2 R^2)) (the helix's axis part)
+    in_plane = np.exp(-0.5**2 / (2 * radius**2))
+    expected = np.linalg.norm(np.diff(np.column_stack([in_plane * arc[:, :2], arc[:, 2]])[inner], axis=0), axis=1).sum()
+    assert length(gaussian) == pytest.approx(expected, rel=5e-4) and length(gaussian) < 0.996 * true  # -0.46 %
+    quadratic = length(quadratic_smoothed(arc, 15))  # -0.10 % (its bias goes with (window / R)^4)
+    assert quadratic == pytest.approx(true, rel=1.5e-3) and true - quadratic < 0.25 * (true - length(gaussian))
+    parabola = np.column_stack([s, 0.2 * s**2 - s, np.full_like(s, 3.0)])
+    np.testing.assert_allclose(quadratic_smoothed(parabola, 15), parabola, atol=1e-9)  # a parabola is kept, ends too
+    # white noise of sd 1 on a line: the centred 15-point parabola leaves it a variance of
+    # 3 (3 m^2 + 3 m - 1) / ((2 m + 3)(2 m + 1)(2 m - 1)), m = 7 (Savitzky-Golay's centre weights)
+    rng = np.random.default_rng(3)
+    noisy = rng.normal(size=(20000, 1))
+    m = 7
+    factor = 3 * (3 * m * m + 3 * m - 1) / ((2 * m + 3) * (2 * m + 1) * (2 * m - 1))
+    assert np.var(quadratic_smoothed(noisy, 15)[m:-m]) == pytest.approx(factor, rel=0.05)
