@@ -392,14 +392,9 @@ class _Arrays:
         if sigma_mm <= 0:
             return
         for b in range(len(self.counts)):
-            s = self.span(b)
-            p = self.points[s]
-            if len(p) < 3:
-                continue
-            smooth = ndi.gaussian_filter1d(p, sigma_mm / step_mm, axis=0, mode="nearest")
-            smooth[0], smooth[-1] = p[0], p[-1]
-            self.points[s] = smooth
-            self.reattach(b)
+            p = self.points[self.span(b)]
+            if len(p) >= 3:
+                self._smoothed(b, ndi.gaussian_filter1d(p, sigma_mm / step_mm, axis=0, mode="nearest"))
 
     def smooth_quadratic(self, window_mm: float, sigma_mm: float, step_mm: float) -> None:
         """The positions of each branch fitted by :func:`quadratic_smoothed` over ``window_mm`` of arc
@@ -410,18 +405,18 @@ class _Arrays:
             self.smooth(sigma_mm, step_mm)
             return
         for b in range(len(self.counts)):
-            s = self.span(b)
-            p = self.points[s]
-            if len(p) <= window:
-                if len(p) >= 3 and sigma_mm > 0:
-                    smooth = ndi.gaussian_filter1d(p, sigma_mm / step_mm, axis=0, mode="nearest")
-                else:
-                    continue
-            else:
-                smooth = quadratic_smoothed(p, window)
-            smooth[0], smooth[-1] = p[0], p[-1]
-            self.points[s] = smooth
-            self.reattach(b)
+            p = self.points[self.span(b)]
+            if len(p) > window:
+                self._smoothed(b, quadratic_smoothed(p, window))
+            elif len(p) >= 3 and sigma_mm > 0:
+                self._smoothed(b, ndi.gaussian_filter1d(p, sigma_mm / step_mm, axis=0, mode="nearest"))
+
+    def _smoothed(self, b: int, smooth: np.ndarray) -> None:
+        """Branch ``b``'s positions set to ``smooth`` but for its two ends; its children re-attached."""
+        s = self.span(b)
+        smooth[0], smooth[-1] = self.points[s][0], self.points[s][-1]
+        self.points[s] = smooth
+        self.reattach(b)
 
     def reattach(self, parent: int) -> None:
         for child, p in enumerate(self.parents):
