@@ -296,6 +296,8 @@ TREE_SETTINGS = TreeSettings()
 """The settings every reconstruction uses (measured in docs/vessel-tree.md)."""
 
 _MIN_RADIUS_MM = 0.05
+_JUNCTION_STRIDE_RADIUS_PX = 12.0  # the junction step reads every k-th pixel of a tube k times this wide (radius),
+_JUNCTION_MAX_PIXELS = 40_000  # ... or of a window larger than this, down to this many (XCAT, 2 views: 64 s -> 2 s)
 _SEEK_PX = 2.0  # a projection off the mask looks this far along the normal for the vessel
 
 
@@ -975,7 +977,10 @@ def _junction_on_silhouettes(parent: np.ndarray, child: np.ndarray, child_radius
     candidates = np.union1d(candidates, [reference])
     if len(candidates) == 1:
         return reference
-    curves = [_joining_curve(parent[j], child, first, 0.5 * settings.point_step_mm) for j in candidates]
+    # discs half a step apart, at most an eighth of a radius on a wide tube (the union's edge within
+    # a hundredth of a radius of the tube's)
+    spacing_mm = max(0.5 * settings.point_step_mm, 0.125 * child_radius_mm)
+    curves = [_joining_curve(parent[j], child, first, spacing_mm) for j in candidates]
     owner = np.repeat(np.arange(len(candidates)), [len(c) for c in curves])
     flat = np.concatenate(curves)
     others_mm, others_radius_mm = others
@@ -988,7 +993,10 @@ def _junction_on_silhouettes(parent: np.ndarray, child: np.ndarray, child_radius
         hi = np.minimum(np.ceil(uv.max(axis=0) + radius_px.max() + 1.0).astype(int) + 1, image.shape[::-1])
         if np.any(hi <= lo):
             continue
-        v, u = np.mgrid[lo[1]:hi[1], lo[0]:hi[0]]
+        # a wide tube or window is read on every stride-th pixel (counts scaled back up)
+        stride = max(1, int(radius_px.max() // _JUNCTION_STRIDE_RADIUS_PX),
+                     int(np.ceil(np.sqrt(np.prod(hi - lo) / _JUNCTION_MAX_PIXELS))))
+        v, u = np.mgrid[lo[1]:hi[1]:stride, lo[0]:hi[0]:stride]
         pixels = np.column_stack([u.ravel(), v.ravel()]).astype(np.float64)
         # only the pixels some candidate's tube covers can tell the candidates apart
         hit_pixel, hit_disc = _disc_hits(pixels, uv, radius_px)
@@ -1003,7 +1011,7 @@ def _junction_on_silhouettes(parent: np.ndarray, child: np.ndarray, child_radius
         rest = np.zeros(len(pixels), dtype=bool)
         rest[_disc_hits(pixels, others_uv[near], others_px[near])[0]] = True
         # a pixel the rest of the tree covers is covered whichever candidate joins
-        wrong += np.count_nonzero((covers | rest[:, None]) != inside[:, None], axis=0)
+        wrong += stride * stride * np.count_nonzero((covers | rest[:, None]) != inside[:, None], axis=0)
     if wrong.min() >= wrong[np.flatnonzero(candidates == reference)[0]] - settings.junction_silhouette_gain_px:
         return reference
     ties = np.flatnonzero(wrong <= wrong.min() + settings.junction_silhouette_tie_px)
