@@ -1067,8 +1067,9 @@ def _junction_on_axes(arrays: _Arrays, settings: TreeSettings,
                 or float(np.linalg.norm(parent[j] - parent[k])) > settings.junction_max_move_mm):
             j = k  # the axis passes the parent by or meets it far away: the skeleton's junction
         if silhouettes is not None and settings.junction_silhouette_reach_mm > 0:
-            # the child's points before its clear start are the candidates' business, the rest of the tree's are not
-            # and the parent there at its median radius: its cross-sections where the two merge read both
+            # the candidates draw the child up to its clear start; the rest of the tree is drawn as it is,
+            # but the parent near the junction at its median radius (where the two merge, its
+            # cross-sections read both vessels)
             parent_arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(parent, axis=0), axis=1))])
             near = np.abs(parent_arc - parent_arc[j]) <= (settings.junction_silhouette_reach_mm
                                                           + settings.junction_silhouette_parent_mm)
