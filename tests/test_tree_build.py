@@ -134,6 +134,22 @@ def test_a_side_branch_starts_where_its_axis_meets_the_trunk(angle_deg):
     assert np.degrees(np.arccos(min(cosine, 1.0))) < 5.0
 
 
+def _mean_junction_error(truth_and_junction):
+    """The reconstructed bifurcation's distance from the true junction (mm), mean over five
+    placements of the tree shifted by up to 0.8 mm (one placement's reading scatters with where
+    the tubes fall on the pixels)."""
+    truth, junction = truth_and_junction
+    errors = []
+    for shift in np.linspace(0.0, 0.8, 5):
+        offset = shift * np.array([1.0, 0.5, -0.25])
+        shifted = VesselTree(tuple(Branch(b.points_mm + offset, b.radius_mm, b.parent, b.parent_point, b.name)
+                                   for b in truth.branches))
+        tree = _reconstructed(shifted).tree
+        errors.append(min(np.linalg.norm(np.array(f.position_mm) - junction - offset) for f in tree.bifurcations
+                          if min(tree.branches[c].length_mm for c in f.children) >= 5.0))
+    return float(np.mean(errors))
+
+
 @pytest.mark.parametrize("angle_deg", [30, 40])
 def test_a_shallow_side_branch_is_read_near_the_trunk(angle_deg):
     # a side branch (radius 1.3 mm) leaving a trunk (2.0 mm) at 30 or 40 degrees is clear of the
@@ -141,16 +157,7 @@ def test_a_shallow_side_branch_is_read_near_the_trunk(angle_deg):
     # is extended back that far. One placement's reading scatters with where the tubes fall on the
     # pixels (0.0-1.0 mm over 20 shifts of the same tree by up to 2 mm, mean 0.25 and 0.17 mm;
     # measured 2026-12-05), so the mean over five placements is tested
-    errors = []
-    for shift in np.linspace(0.0, 0.8, 5):
-        truth, junction = _side_branch(angle_deg)
-        offset = shift * np.array([1.0, 0.5, -0.25])
-        truth = VesselTree(tuple(Branch(b.points_mm + offset, b.radius_mm, b.parent, b.parent_point, b.name)
-                                 for b in truth.branches))
-        tree = _reconstructed(truth).tree
-        errors.append(min(np.linalg.norm(np.array(f.position_mm) - junction - offset) for f in tree.bifurcations
-                          if min(tree.branches[c].length_mm for c in f.children) >= 5.0))
-    assert np.mean(errors) < 0.4  # measured 0.17 and 0.20 mm (0.28 and 0.19 before the silhouette junction step)
+    assert _mean_junction_error(_side_branch(angle_deg)) < 0.4  # measured 0.17 and 0.20 mm (0.28 and 0.19 before the silhouette junction step)
 
 
 def _curving_side_branch(angle_deg, bend_radius_mm):
@@ -176,16 +183,7 @@ def test_a_curving_side_branch_joins_where_its_tube_matches_the_masks(angle_deg,
     # clear of the trunk, extended back, tilts with the turn and meets the trunk 2.6 and 3.3 mm
     # from the junction (mean of five placements, measured 2026-12-05 with the silhouette step off);
     # the junction that makes the joining tube match the three masks best lies 0.7 and 0.9 mm off
-    errors = []
-    for shift in np.linspace(0.0, 0.8, 5):
-        truth, junction = _curving_side_branch(angle_deg, bend_radius_mm)
-        offset = shift * np.array([1.0, 0.5, -0.25])
-        truth = VesselTree(tuple(Branch(b.points_mm + offset, b.radius_mm, b.parent, b.parent_point, b.name)
-                                 for b in truth.branches))
-        tree = _reconstructed(truth).tree
-        errors.append(min(np.linalg.norm(np.array(f.position_mm) - junction - offset) for f in tree.bifurcations
-                          if min(tree.branches[c].length_mm for c in f.children) >= 5.0))
-    assert np.mean(errors) < limit_mm
+    assert _mean_junction_error(_curving_side_branch(angle_deg, bend_radius_mm)) < limit_mm
 
 
 def test_a_short_trunk_keeps_its_start_and_direction_into_a_bifurcation():
