@@ -297,7 +297,7 @@ TREE_SETTINGS = TreeSettings()
 """The settings every reconstruction uses (measured in docs/vessel-tree.md)."""
 
 _MIN_RADIUS_MM = 0.05
-_JUNCTION_STRIDE_RADIUS_PX = 12.0  # the junction step reads every k-th pixel of a tube k times this wide (radius),
+_JUNCTION_STRIDE_RADIUS_PX = 12.0  # the junction step reads every k-th pixel of a tube this wide and k/2 times it (radius),
 _JUNCTION_MAX_PIXELS = 40_000  # ... or of a window larger than this, down to this many (XCAT, 2 views: 64 s -> 2 s)
 _SEEK_PX = 2.0  # a projection off the mask looks this far along the normal for the vessel
 
@@ -994,8 +994,10 @@ def _junction_on_silhouettes(parent: np.ndarray, child: np.ndarray, child_radius
         hi = np.minimum(np.ceil(uv.max(axis=0) + radius_px.max() + 1.0).astype(int) + 1, image.shape[::-1])
         if np.any(hi <= lo):
             continue
-        # a wide tube or window is read on every stride-th pixel (counts scaled back up)
-        stride = max(1, int(radius_px.max() // _JUNCTION_STRIDE_RADIUS_PX),
+        # a wide tube (every second pixel from 12 px of radius, every third from 18, ...) or window is
+        # read on every stride-th pixel (counts scaled back up)
+        wide = radius_px.max() >= _JUNCTION_STRIDE_RADIUS_PX
+        stride = max(1, int(radius_px.max() // (0.5 * _JUNCTION_STRIDE_RADIUS_PX)) if wide else 1,
                      int(np.ceil(np.sqrt(np.prod(hi - lo) / _JUNCTION_MAX_PIXELS))))
         v, u = np.mgrid[lo[1]:hi[1]:stride, lo[0]:hi[0]:stride]
         pixels = np.column_stack([u.ravel(), v.ravel()]).astype(np.float64)
