@@ -238,7 +238,7 @@ from scipy.spatial import cKDTree
 from ..errors import ReconstructionError, TreeError
 from ..geometry import Projection
 from ..tree import Branch, VesselTree
-from ..tree.model import point_at_arc
+from ..tree.model import arc_length_mm, point_at_arc
 from ..tree.skeleton import SkeletonInfo, SkeletonSettings, rerooted, tree_from_skeleton
 from ..tree.teasar import teasar_skeleton
 from ..tree.voxels import coordinates, dilated, distance_to, neighbour_edges
@@ -298,7 +298,7 @@ TREE_SETTINGS = TreeSettings()
 
 _MIN_RADIUS_MM = 0.05
 _JUNCTION_STRIDE_RADIUS_PX = 12.0  # the junction step reads every k-th pixel of a tube this wide and k/2 times it (radius),
-_JUNCTION_MAX_PIXELS = 40_000  # ... or of a window larger than this, down to this many (XCAT, 2 views: 64 s -> 2 s)
+_JUNCTION_MAX_PIXELS = 40_000  # ... or of a window larger than this, down to this many (XCAT, 2 views: 64 s without)
 _SEEK_PX = 2.0  # a projection off the mask looks this far along the normal for the vessel
 
 
@@ -478,7 +478,7 @@ class _Arrays:
             return self, 0  # (first child at the root's last point: the root would be that point alone)
         if fork_deg is not None:
             def outward(p: np.ndarray) -> np.ndarray:
-                arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+                arc = arc_length_mm(p)
                 v = p[min(int(np.searchsorted(arc, reach_mm)), len(p) - 1)] - p[0]
                 return v / max(float(np.linalg.norm(v)), 1e-12)
             head = outward(self.points[first::-1])
@@ -641,7 +641,7 @@ def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *,
     arc = np.empty(n)
     for b in range(len(arrays.counts)):
         p = arrays.points[arrays.span(b)]
-        arc[arrays.span(b)] = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+        arc[arrays.span(b)] = arc_length_mm(p)
     radius = arrays.radius
     margin = settings.overlap_margin_px
     out = np.zeros((views, n), dtype=bool)
@@ -788,7 +788,7 @@ def _interpolate_held(arrays: _Arrays, held: np.ndarray) -> None:
         if not hold.any() or hold.all():
             continue
         p = arrays.points[s]
-        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+        arc = arc_length_mm(p)
         r = arrays.radius[s]
         r[hold] = np.interp(arc[hold], arc[~hold], r[~hold])
         arrays.radius[s] = r
@@ -861,7 +861,7 @@ def _rooted_at_ostium(arrays: "_Arrays", settings: TreeSettings,
         if b == 0:
             root_mean = mean
         # not where branches meet: their cross-sections merge there and the radii swell
-        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(arrays.points[arrays.span(b)], axis=0), axis=1))])
+        arc = arc_length_mm(arrays.points[arrays.span(b)])
         junctions = [arc[p] for p in child_points[b]]
         if b > 0:
             junctions.append(0.0)
@@ -938,13 +938,18 @@ def _fitted_line(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return centre, (-axis if axis @ (points[-1] - points[0]) < 0 else axis)
 
 
+def _clear_direction(child: np.ndarray, first: int) -> np.ndarray:
+    """The child's unit direction at its first clear point: the chord to the point 3 points on."""
+    direction = child[min(first + 3, len(child) - 1)] - child[first]
+    return direction / max(float(np.linalg.norm(direction)), 1e-12)
+
+
 def _joining_curve(junction: np.ndarray, child: np.ndarray, first: int, step_mm: float) -> np.ndarray:
     """The child's start from ``junction`` on its parent to its first clear point ``child[first]``:
     the cubic Hermite curve leaving along the chord and arriving along the child's direction there
     (over the next 3 points), points at most ``step_mm`` apart, both ends included."""
     end = child[first]
-    direction = child[min(first + 3, len(child) - 1)] - end
-    direction = direction / max(float(np.linalg.norm(direction)), 1e-12)
+    direction = _clear_direction(child, first)
     chord = end - junction
     length = float(np.linalg.norm(chord))
     s = np.linspace(0.0, 1.0, max(2, int(np.ceil(length / step_mm)) + 1))[:, None]
@@ -961,20 +966,18 @@ def _disc_hits(pixels: np.ndarray, centres_px: np.ndarray, radii_px: np.ndarray)
     return pairs["i"][inside].astype(np.intp), pairs["j"][inside].astype(np.intp)
 
 
-def _junction_on_silhouettes(parent: np.ndarray, child: np.ndarray, child_radius_mm: float, first: int, reference: int,
-                             others: tuple[np.ndarray, np.ndarray], silhouettes, settings: TreeSettings) -> int:
-    """The parent point (index) to join the child to (module notes, step 5): of those within
-    ``junction_silhouette_reach_mm`` of ``reference`` (the axis rule's junction, or the skeleton's)
-    and behind the clear start, the one whose joining curve's tube (with the rest of the tree, the
+def _junction_on_silhouettes(parent: np.ndarray, parent_arc: np.ndarray, child: np.ndarray, child_radius_mm: float,
+                             first: int, reference: int, others: tuple[np.ndarray, np.ndarray], silhouettes,
+                             settings: TreeSettings) -> int:
+    """The parent point (index; ``parent_arc``: the parent's arc lengths) to join the child to
+    (module notes, step 5): of those within ``junction_silhouette_reach_mm`` of ``reference`` (the
+    axis rule's junction, or the skeleton's) and behind the clear start, the one whose joining curve's tube (with the rest of the tree, the
     points ``others``: positions and radii) disagrees with the fewest mask pixels, summed over the
     views, unless no junction lowers that count by more than ``junction_silhouette_gain_px``;
     among those within ``junction_silhouette_tie_px`` of the fewest, the nearest to ``reference``."""
     projections, images = silhouettes
-    end = child[first]
-    direction = child[min(first + 3, len(child) - 1)] - end
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(parent, axis=0), axis=1))])
-    candidates = np.flatnonzero((np.abs(arc - arc[reference]) <= settings.junction_silhouette_reach_mm)
-                                & ((end - parent) @ direction > 0))
+    candidates = np.flatnonzero((np.abs(parent_arc - parent_arc[reference]) <= settings.junction_silhouette_reach_mm)
+                                & ((child[first] - parent) @ _clear_direction(child, first) > 0))
     candidates = np.union1d(candidates, [reference])
     if len(candidates) == 1:
         return reference
@@ -996,9 +999,9 @@ def _junction_on_silhouettes(parent: np.ndarray, child: np.ndarray, child_radius
             continue
         # a wide tube (every second pixel from 12 px of radius, every third from 18, ...) or window is
         # read on every stride-th pixel (counts scaled back up)
-        wide = radius_px.max() >= _JUNCTION_STRIDE_RADIUS_PX
-        stride = max(1, int(radius_px.max() // (0.5 * _JUNCTION_STRIDE_RADIUS_PX)) if wide else 1,
-                     int(np.ceil(np.sqrt(np.prod(hi - lo) / _JUNCTION_MAX_PIXELS))))
+        widest_px = float(radius_px.max())
+        tube_stride = int(widest_px // (0.5 * _JUNCTION_STRIDE_RADIUS_PX)) if widest_px >= _JUNCTION_STRIDE_RADIUS_PX else 1
+        stride = max(tube_stride, int(np.ceil(np.sqrt(np.prod(hi - lo) / _JUNCTION_MAX_PIXELS))))
         v, u = np.mgrid[lo[1]:hi[1]:stride, lo[0]:hi[0]:stride]
         pixels = np.column_stack([u.ravel(), v.ravel()]).astype(np.float64)
         # only the pixels some candidate's tube covers can tell the candidates apart
@@ -1072,7 +1075,7 @@ def _junction_on_axes(arrays: _Arrays, settings: TreeSettings,
             # the candidates draw the child up to its clear start; the rest of the tree is drawn as it is,
             # but the parent near the junction at its median radius (where the two merge, its
             # cross-sections read both vessels)
-            parent_arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(parent, axis=0), axis=1))])
+            parent_arc = arc_length_mm(parent)
             near = np.abs(parent_arc - parent_arc[j]) <= (settings.junction_silhouette_reach_mm
                                                           + settings.junction_silhouette_parent_mm)
             parent_radius_seen = parent_radius.copy()
@@ -1080,7 +1083,7 @@ def _junction_on_axes(arrays: _Arrays, settings: TreeSettings,
             rest_points = np.concatenate([points[c] for c in range(n_branches) if c not in (b, p)] + [parent, child[first:]])
             rest_radius = np.concatenate([radius[c] for c in range(n_branches) if c not in (b, p)]
                                          + [parent_radius_seen, child_radius[first:]])
-            j = _junction_on_silhouettes(parent, child, float(child_radius[first]), first, j,
+            j = _junction_on_silhouettes(parent, parent_arc, child, float(child_radius[first]), first, j,
                                          (rest_points, rest_radius), silhouettes, settings)
         elif j == k:
             continue  # kept as the skeleton has it
@@ -1122,7 +1125,7 @@ def _straight_tips(arrays: _Arrays, settings: TreeSettings) -> int:
         for at_start in ends + ([True] if b == 0 else []):
             points = arrays.points[span][::-1] if not at_start else arrays.points[span]
             radius = arrays.radius[span][::-1] if not at_start else arrays.radius[span]
-            arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+            arc = arc_length_mm(points)
             # the vessel's radius: the largest within the stretch (an end cap's cross-sections narrow
             # to nothing towards the tip, and their median straightened a thick vessel's hook over a
             # third of it)
@@ -1177,7 +1180,7 @@ def _move_ends(arrays: _Arrays, projections, images, settings: TreeSettings) -> 
                     points = np.vstack([points, extra])
                     radius = np.concatenate([radius, np.full(len(extra), radius[-1])])
                 elif move < 0:
-                    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+                    arc = arc_length_mm(points)
                     target = arc[-1] + move
                     keep = arc <= target
                     children_points = [c.parent_point for c in branches if c.parent == index]
@@ -1197,7 +1200,7 @@ def _move_ends(arrays: _Arrays, projections, images, settings: TreeSettings) -> 
                     radius = np.concatenate([np.full(count, radius[0]), radius])
                     shift = count
                 elif move < 0:
-                    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+                    arc = arc_length_mm(points)
                     children_points = [c.parent_point for c in branches if c.parent == index]
                     cut = min(int(np.searchsorted(arc, -move, side="left")), min(children_points, default=len(points)),
                               len(points) - 2)

@@ -29,7 +29,7 @@ import numpy as np
 from .. import _validation as _v
 from ..errors import TreeError
 
-__all__ = ["Branch", "VesselTree", "Bifurcation", "TREE_JSON_FORMAT", "point_at_arc"]
+__all__ = ["Branch", "VesselTree", "Bifurcation", "TREE_JSON_FORMAT", "arc_length_mm", "point_at_arc"]
 
 TREE_JSON_FORMAT = "angiohull-vessel-tree"
 """The ``format`` field of :meth:`VesselTree.to_dict` (``tree.json``)."""
@@ -121,8 +121,7 @@ class Branch:
     @property
     def arc_length_mm(self) -> np.ndarray:
         """(M,) arc length of each point from the branch's first point, mm (0 first)."""
-        steps = np.linalg.norm(np.diff(self.points_mm, axis=0), axis=1)
-        return np.concatenate([[0.0], np.cumsum(steps)])
+        return arc_length_mm(self.points_mm)
 
     @property
     def length_mm(self) -> float:
@@ -149,6 +148,11 @@ class Branch:
         where = "root" if self.parent is None else f"parent={self.parent} at point {self.parent_point}"
         return (f"Branch({self.name!r}, {self.n_points} points, {self.length_mm:.1f} mm, radius "
                 f"{self.radius_mm.min():.2f}-{self.radius_mm.max():.2f} mm, {where})")
+
+
+def arc_length_mm(points_mm: np.ndarray) -> np.ndarray:
+    """(M,) arc length of each point of a polyline (M, 3) from its first point, mm (0 first)."""
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points_mm, axis=0), axis=1))])
 
 
 def point_at_arc(points_mm: np.ndarray, arc_mm: np.ndarray, at_mm: float) -> np.ndarray:
