@@ -99,6 +99,8 @@ def test_an_8_bit_png_segments_like_the_float_image(rendered, tmp_path, window):
 
 
 def test_pure_noise_gives_no_vessel():
+    """(The detection takes 72 % of this frame's field for ridges: the local background is not read
+    there, see ``_LOCAL_BACKGROUND_MAX_SHARE``; read, it lifts 6641 pixels into the mask.)"""
     rng = np.random.default_rng(5)
     flat = rng.poisson(2000.0, size=(256, 256)).astype(float)
     assert not segment_vessels(flat).any()
@@ -201,6 +203,47 @@ def test_the_profile_edge_brings_the_mask_edge_to_the_silhouette(rendered):
             assert not (narrower & ~plain).any()
     plain_offset, profile_offset, relative_offset = np.abs(offsets).mean(axis=0)
     assert profile_offset < 0.8 * plain_offset and relative_offset < 0.8 * plain_offset
+
+
+def _vessel_in_a_dark_band(seed, *, band_depth, band_sigma_px=10.0, radius_px=3.4, mu_per_px=0.05, size=192):
+    """A straight vertical vessel of ``radius_px`` (attenuation ``mu_per_px`` x its chord) along the
+    middle of a dark band of the body (a Gaussian ridge of ``band_depth`` in the body's attenuation,
+    sigma ``band_sigma_px``), kept off the image border; detector blur 0.6 px, Poisson noise of 4000
+    quanta. Returns the counts and the true mask (pixel centres within the radius)."""
+    from scipy import ndimage as ndi
+
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:size, 0:size].astype(float)
+    middle = size / 2.0
+    inside = (y >= 24) & (y <= size - 24)
+    body = 1.0 + band_depth * np.exp(-0.5 * ((x - middle) / band_sigma_px) ** 2)
+    chord = 2.0 * np.sqrt(np.clip(radius_px ** 2 - (x - middle) ** 2, 0.0, None)) * inside
+    intensity = ndi.gaussian_filter(np.exp(-(body + mu_per_px * chord)), 0.6)
+    return rng.poisson(4000.0 * intensity).astype(float), (np.abs(x - middle) <= radius_px) & inside
+
+
+def test_the_local_background_keeps_a_vessel_in_a_dark_band_to_its_width():
+    """The closing that flattens the background fills a dark band of the body narrower than its
+    square, so the band's own attenuation lies under a vessel running along it and lifts its edges
+    over the edge level: with the global flattening alone (``local_background_px`` 0) the mask of
+    a 7 px wide vessel in a band 0.1 deep and 24 px across (FWHM) comes out 1.67 px too wide on
+    average over three noise draws (2 px on 96 % of the rows). The local background, read around
+    the vessel, takes the band off: the true width on 92 % of the rows, +0.09 px on average. Without the band both give the true width (the oracle: the pixel centres within
+    the radius). The edge step alone: the densitometric widening is off."""
+    edge_only = SegmentationParameters(density_radius_px=0.0)
+    errors = {0.0: [], 5.0: []}
+    for seed in range(3):
+        flat, flat_truth = _vessel_in_a_dark_band(seed, band_depth=0.0)
+        counts, truth = _vessel_in_a_dark_band(seed, band_depth=0.1)
+        rows = slice(30, 162)  # clear of the vessel's ends
+        for sigma_px in errors:
+            params = edge_only.replace(local_background_px=sigma_px)
+            assert np.array_equal(segment_vessels(flat, params)[rows], flat_truth[rows])
+            mask = segment_vessels(counts, params)
+            errors[sigma_px].append(mask[rows].sum(axis=1) - truth[rows].sum(axis=1))
+    global_only, local = (np.concatenate(errors[k]) for k in (0.0, 5.0))
+    assert global_only.mean() >= 1.0 and np.median(global_only) >= 2.0
+    assert np.median(local) == 0.0 and 0.0 <= local.mean() <= 0.5
 
 
 def test_bad_images_are_reported():
