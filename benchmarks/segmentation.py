@@ -12,12 +12,12 @@ RAO 55 CRA 10, LAO 20 CRA 40 -- 512 x 512 pixels of 0.35 mm, SID 1200 mm, SOD 80
 view and seed. Renderer settings: the defaults with an 8-pixel collimator ("default"), and
 variations that make the task harder. Segmentation: the default SegmentationParameters (Sato, its
 edge at the blurred round vessel's level, edge_profile 0.5, read on the attenuation less its local
-background, gaps bridged up to 20 px, narrow vessels widened to their densitometric radius), Sato without the densitometric widening (density_radius_px
-0, the masks before commit 932e387), Sato without the local background under the vessels
-(local_background_px 0, the masks before 2026-12-06), Sato without
-bridging (bridge_px 0, the default before 2026-12-03), Sato with the noise-level edge alone
-(edge_profile 0, the default before 2026-12-03), Sato with the relative edge alone (edge_fraction
-0.2), and Frangi. Prints mean and minimum Dice per setting and the mean time of segment_vessels per image.
+background, gaps bridged up to 20 px, narrow vessels widened to their densitometric radius), Sato
+without the densitometric widening (density_radius_px 0, the masks before commit 932e387), Sato
+without the local background under the vessels (local_background_px 0, the masks before
+2026-12-06), Sato without bridging (bridge_px 0, the default before 2026-12-03), Sato with the
+noise-level edge alone (edge_profile 0, the default before 2026-12-03), Sato with the relative edge
+alone (edge_fraction 0.2), and Frangi. Prints mean and minimum Dice per setting and the mean time of segment_vessels per image.
 """
 
 from __future__ import annotations
