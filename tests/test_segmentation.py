@@ -321,6 +321,33 @@ def test_a_faint_thin_vessel_beyond_the_gap_is_kept_through_the_bridge():
     assert not joined[:, 110:180][np.abs(np.arange(200) - 100) > 4].any()  # the faint vessel is 2.5 px wide
 
 
+def test_a_gap_whose_two_sides_the_image_joins_around_through_other_vessels_is_bridged():
+    """The vessel of the first bridging test (row 100, interrupted over columns 90-103), but each
+    side crossed by a vertical vessel (columns 40 and 160) that a horizontal one (row 40) joins: the
+    two sides are one structure, joined the long way round (about 290 px of skeleton). Bridging
+    joins them across the gap all the same (before 2026-12-06 it joined only different structures,
+    and a vessel whose distal part ran on into a vessel it crossed kept its gap), and the loop
+    around adds nothing else: the rest of the mask is the mask without bridging."""
+    from scipy import ndimage as ndi
+
+    image = np.full((200, 200), 1000.0)
+    for row, first, end, transposed in ((100, 20, 90, False), (100, 104, 180, False), (40, 35, 166, False),
+                                        (40, 35, 106, True), (160, 35, 106, True)):
+        layer = np.full((200, 200), 1000.0)
+        _bar(layer, row, first, end, 3.0, 0.05)
+        image *= (layer.T if transposed else layer) / 1000.0
+    image = ndi.gaussian_filter(image, 0.6) + np.random.default_rng(7).normal(0.0, 3.0, image.shape)
+    plain = segment_vessels(image, NO_BRIDGE)
+    joined = segment_vessels(image, BRIDGE)
+    assert _parts(plain) == 1 and not plain[60:, 91:103].any()  # rows 37-43: the vessel along row 40
+    assert joined[100, 91:103].all()
+    rows, _ = np.nonzero(joined[60:, 92:102])
+    assert set(rows + 60) <= {98, 99, 100, 101, 102}  # the line, its cross near the ends and specks of noise on it
+    outside = np.ones(image.shape, bool)
+    outside[96:105, 86:108] = False
+    np.testing.assert_array_equal(joined & outside, plain & outside)
+
+
 def test_ends_that_do_not_point_at_each_other_are_not_joined():
     """Two vessels whose ends lie 16 px apart across and 6 px along (the line between them at
     about 70 degrees to both): no bridge."""

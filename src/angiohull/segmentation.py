@@ -27,8 +27,9 @@ a well-known operation with a documented parameter (:class:`SegmentationParamete
    **bridging**: a severe stenosis, or a faint stretch, interrupts a vessel in the vesselness, and
    the part beyond it, often thin and faint, then never reaches the high threshold and was lost
    with its stenosis. Two ends of the skeletons of elongated structures above the low threshold
-   (Guo–Hall) at most ``bridge_px`` apart, in different structures and pointing at each other
-   within ``bridge_angle_deg``, are joined by a line, and then an end that points at another
+   (Guo–Hall) at most ``bridge_px`` apart and pointing at each other within
+   ``bridge_angle_deg``, in different structures or in one that joins them only the long way round
+   (through a vessel it crosses), are joined by a line, and then an end that points at another
    structure's skeleton within that reach (a vessel leaving an overlap, a side branch whose origin
    is narrowed); structures touching at a corner are one (:func:`_bridges`). ``bridge_px`` 0 gives
    :func:`skimage.filters.apply_hysteresis_threshold` exactly, the only behaviour before
@@ -532,6 +533,25 @@ def _line_pixels(start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.nda
 # generated angiograms held 75-183 px.
 _CANDIDATE_SHARE = 2
 _ELONGATION = 2.0
+# Two ends of one structure are joined only where its skeleton does not join them within this many
+# times bridge_px steps: the structure holds both sides of the gap because it runs on, in the image,
+# into another vessel that it crosses or overlaps (a vessel and its distal part, joined around
+# through that vessel), not because the two ends are a spur's, or a curled vessel's, own.
+_SAME_STRUCTURE_DETOUR = 2.0
+
+
+def _joined_along(skeleton: np.ndarray, start: np.ndarray, end: np.ndarray, steps: int) -> bool:
+    """Whether ``skeleton`` joins the pixels ``start`` and ``end`` (row, col) by a path of at most
+    ``steps`` 8-connected steps (a geodesic dilation of ``start`` within the skeleton)."""
+    r, c = int(start[0]), int(start[1])
+    r0, c0 = max(r - steps, 0), max(c - steps, 0)
+    window = skeleton[r0:r + steps + 1, c0:c + steps + 1]
+    er, ec = int(end[0]) - r0, int(end[1]) - c0
+    if not (0 <= er < window.shape[0] and 0 <= ec < window.shape[1]):
+        return False
+    seed = np.zeros(window.shape, dtype=bool)
+    seed[r - r0, c - c0] = True
+    return bool(ndi.binary_dilation(seed, structure=_EIGHT, iterations=steps, mask=window)[er, ec])
 
 
 def _bridges(candidates: np.ndarray, params: SegmentationParameters) -> np.ndarray:
@@ -540,13 +560,16 @@ def _bridges(candidates: np.ndarray, params: SegmentationParameters) -> np.ndarr
     vesselness.
 
     Each elongated structure is thinned (Guo-Hall); an end of its skeleton points from the pixel
-    ``bridge_px / 2`` steps back along it (or the last before a junction) to the end. Two ends of
-    different structures at most ``bridge_px`` apart, each pointing at the other within
-    ``bridge_angle_deg``, are joined, the shortest first (length over the product of the two
-    cosines); then an end left over that points, within that angle, at the skeleton of another
-    structure within ``bridge_px`` is joined to its nearest such pixel (a vessel that leaves an
-    overlap, or a side branch whose origin is narrowed). Each end and each pair of structures is
-    joined once; a line is 4-connected and one pixel wide."""
+    ``bridge_px / 2`` steps back along it (or the last before a junction) to the end. Two ends at
+    most ``bridge_px`` apart, each pointing at the other within ``bridge_angle_deg``, are joined,
+    the shortest first (length over the product of the two cosines), if they lie in different
+    structures or, in one structure, its skeleton does not join them within
+    ``_SAME_STRUCTURE_DETOUR x bridge_px`` steps (the vessel beyond the gap runs on into another
+    vessel it crosses, which joins it to the near side around the gap); then an end left over
+    that points, within that angle, at the skeleton of another structure within ``bridge_px`` is
+    joined to its nearest such pixel (a vessel that leaves an overlap, or a side branch whose
+    origin is narrowed). Each end, and each pair of different structures, is joined once; a line
+    is 4-connected and one pixel wide."""
     from scipy.spatial import cKDTree
 
     from .thinning import guo_hall_thin, pixel_box
@@ -583,13 +606,16 @@ def _bridges(candidates: np.ndarray, params: SegmentationParameters) -> np.ndarr
     length = np.linalg.norm(step, axis=1)
     cos_i = np.einsum("ij,ij->i", direction[i], step) / length
     cos_j = -np.einsum("ij,ij->i", direction[j], step) / length
-    ok = (label[i] != label[j]) & (cos_i >= limit) & (cos_j >= limit)
+    ok = (cos_i >= limit) & (cos_j >= limit)
+    detour = int(math.ceil(_SAME_STRUCTURE_DETOUR * params.bridge_px))
+    for k in np.flatnonzero(ok & (label[i] == label[j])):
+        ok[k] = not _joined_along(skeleton, ends[i[k]], ends[j[k]], detour)
     i, j, score = i[ok], j[ok], length[ok] / np.maximum(cos_i[ok] * cos_j[ok], 1e-9)
     used, joined = set(), set()
     for k in np.argsort(score, kind="stable"):
         a, b = int(i[k]), int(j[k])
         parts = (min(label[a], label[b]), max(label[a], label[b]))
-        if a in used or b in used or parts in joined:
+        if a in used or b in used or (parts in joined and parts[0] != parts[1]):
             continue
         used.update((a, b))
         joined.add(parts)
