@@ -2,8 +2,9 @@
 
 By Beer–Lambert, the flattened attenuation ``A`` of a segmentation (:func:`angiohull.segmentation.
 flatten_background`, less its local background near the vessels: the segmentation's step 5) is
-``mu`` x the chord of the ray through the contrast-filled lumen. Integrated across a vessel, along the normal to its centreline, it gives ``mu`` x the lumen's cross-sectional
-area, ``mu pi R^2`` for a round lumen of radius ``R``, whatever the blur of the detector or of the
+``mu`` x the chord of the ray through the contrast-filled lumen. Integrated across a vessel, along
+the normal to its centreline, it gives ``mu`` x the lumen's cross-sectional area, ``mu pi R^2``
+for a round lumen of radius ``R``, whatever the blur of the detector or of the
 smoothing (a blur spreads the profile, it keeps its integral). A threshold does not: where a
 severe stenosis narrows the lumen to a pixel or two, its attenuation falls to a few noise sigmas,
 the edge level of the segmentation cuts most of it, and the mask there comes out a pixel or more

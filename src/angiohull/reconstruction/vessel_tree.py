@@ -971,10 +971,11 @@ def _junction_on_silhouettes(parent: np.ndarray, parent_arc: np.ndarray, child: 
                              settings: TreeSettings) -> int:
     """The parent point (index; ``parent_arc``: the parent's arc lengths) to join the child to
     (module notes, step 5): of those within ``junction_silhouette_reach_mm`` of ``reference`` (the
-    axis rule's junction, or the skeleton's) and behind the clear start, the one whose joining curve's tube (with the rest of the tree, the
-    points ``others``: positions and radii) disagrees with the fewest mask pixels, summed over the
-    views, unless no junction lowers that count by more than ``junction_silhouette_gain_px``;
-    among those within ``junction_silhouette_tie_px`` of the fewest, the nearest to ``reference``."""
+    axis rule's junction, or the skeleton's) and behind the clear start, the one whose joining
+    curve's tube (with the rest of the tree, the points ``others``: positions and radii) disagrees
+    with the fewest mask pixels, summed over the views, unless no junction lowers that count by
+    more than ``junction_silhouette_gain_px``; among those within ``junction_silhouette_tie_px`` of
+    the fewest, the nearest to ``reference``."""
     projections, images = silhouettes
     candidates = np.flatnonzero((np.abs(parent_arc - parent_arc[reference]) <= settings.junction_silhouette_reach_mm)
                                 & ((child[first] - parent) @ _clear_direction(child, first) > 0))
@@ -1000,7 +1001,8 @@ def _junction_on_silhouettes(parent: np.ndarray, parent_arc: np.ndarray, child: 
         # a wide tube (every second pixel from 12 px of radius, every third from 18, ...) or window is
         # read on every stride-th pixel (counts scaled back up)
         widest_px = float(radius_px.max())
-        tube_stride = int(widest_px // (0.5 * _JUNCTION_STRIDE_RADIUS_PX)) if widest_px >= _JUNCTION_STRIDE_RADIUS_PX else 1
+        tube_stride = (int(widest_px // (0.5 * _JUNCTION_STRIDE_RADIUS_PX))
+                       if widest_px >= _JUNCTION_STRIDE_RADIUS_PX else 1)
         stride = max(tube_stride, int(np.ceil(np.sqrt(np.prod(hi - lo) / _JUNCTION_MAX_PIXELS))))
         v, u = np.mgrid[lo[1]:hi[1]:stride, lo[0]:hi[0]:stride]
         pixels = np.column_stack([u.ravel(), v.ravel()]).astype(np.float64)

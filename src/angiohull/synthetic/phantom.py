@@ -27,6 +27,7 @@ from scipy.spatial import cKDTree
 from .. import _validation as _v
 from ..errors import AngiohullError
 from ..geometry import CArmGeometry, Projection, parse_clinical_angles
+from ..tree.model import arc_length_mm
 
 __all__ = ["Tube", "TubePhantom", "demo_phantom", "demo_views"]
 
@@ -526,14 +527,14 @@ def _sample_curve(curve: Callable[[np.ndarray], np.ndarray], step_mm: float = 1.
     """Points of ``curve(t)``, t in [0, 1], equally spaced in arc length (about ``step_mm``)."""
     t_dense = np.linspace(0.0, 1.0, 4001)
     dense = curve(t_dense)
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(dense, axis=0), axis=1))])
+    arc = arc_length_mm(dense)
     n = max(2, int(round(arc[-1] / step_mm)) + 1)
     return curve(np.interp(np.linspace(0.0, arc[-1], n), arc, t_dense))
 
 
 def _taper(points: np.ndarray, r_start: float, r_end: float) -> np.ndarray:
     """Radii varying linearly with arc length from ``r_start`` to ``r_end``."""
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    arc = arc_length_mm(points)
     return r_start + (r_end - r_start) * arc / arc[-1]
 
 

@@ -22,15 +22,9 @@ import numpy as np
 
 from .. import _validation as _v
 from ..errors import AngiohullError
+from ..tree.model import arc_length_mm
 
 __all__ = ["resample_polyline", "distance_metric", "sum_of_angles_metric", "curvature_metric", "arc_length_mm"]
-
-
-def arc_length_mm(points_mm: np.ndarray) -> np.ndarray:
-    """Cumulative arc length (mm) at each vertex of a polyline, starting at 0."""
-    points = np.asarray(points_mm, dtype=np.float64)
-    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    return np.concatenate([[0.0], np.cumsum(steps)])
 
 
 def resample_polyline(points_mm: np.ndarray, step_mm: float = 1.0) -> np.ndarray:

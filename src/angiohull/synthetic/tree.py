@@ -339,7 +339,7 @@ def _course(frame: _HeartFrame, params: BranchParams, origin: Optional[np.ndarra
         s0, theta0 = frame.coordinates(origin)
         points = frame.surface(control[:, 0] + s0, control[:, 1] + theta0)
         points[0] = origin
-    chord = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    chord = arc_length_mm(points)
     keep = np.concatenate([[True], np.diff(chord) > 1e-9])
     points, chord = points[keep], chord[keep]
     spline = CubicSpline(chord, points, bc_type="natural")

@@ -152,7 +152,8 @@ class Branch:
 
 def arc_length_mm(points_mm: np.ndarray) -> np.ndarray:
     """(M,) arc length of each point of a polyline (M, 3) from its first point, mm (0 first)."""
-    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points_mm, axis=0), axis=1))])
+    steps = np.linalg.norm(np.diff(np.asarray(points_mm, dtype=np.float64), axis=0), axis=1)
+    return np.concatenate([[0.0], np.cumsum(steps)])
 
 
 def point_at_arc(points_mm: np.ndarray, arc_mm: np.ndarray, at_mm: float) -> np.ndarray:
