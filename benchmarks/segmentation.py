@@ -11,13 +11,16 @@ six views -- the three demo views (RAO 30 CRA 30, LAO 60 CRA 30, RAO 30 CAU 30) 
 RAO 55 CRA 10, LAO 20 CRA 40 -- 512 x 512 pixels of 0.35 mm, SID 1200 mm, SOD 800 mm, one image per
 view and seed. Renderer settings: the defaults with an 8-pixel collimator ("default"), and
 variations that make the task harder. Segmentation: the default SegmentationParameters (Sato, its
-edge at the blurred round vessel's level, edge_profile 0.5, read on the attenuation less its local
-background, gaps bridged up to 20 px, narrow vessels widened to their densitometric radius), Sato
-without the densitometric widening (density_radius_px 0, the masks before commit 932e387), Sato
-without the local background under the vessels (local_background_px 0, the masks before
-2026-12-06), Sato without bridging (bridge_px 0, the default before 2026-12-03), Sato with the
-noise-level edge alone (edge_profile 0, the default before 2026-12-03), Sato with the relative edge
-alone (edge_fraction 0.2), and Frangi. Prints mean and minimum Dice per setting and the mean time of segment_vessels per image.
+edge at the blurred round vessel's level, edge_profile 0.5 and edge_blur_px 0.6, read on the
+attenuation less its local background with its floor in the noise left there, gaps bridged up to
+20 px, narrow vessels widened to their densitometric radius), Sato with the edge floor in the
+image's global noise (edge_local_noise false, edge_blur_px 0: the masks before commit 9e18419),
+Sato without the densitometric widening (density_radius_px 0), Sato without the local background
+under the vessels (local_background_px 0, edge_blur_px 0: the masks before commit ee611be), Sato
+without bridging (bridge_px 0), Sato with the noise-level edge alone (edge_profile 0, the floor in
+the global noise: the default before 2026-12-03 but for the local background and bridging), Sato
+with the relative edge alone (edge_fraction 0.2), and Frangi. Prints mean and minimum Dice per
+setting and the mean time of segment_vessels per image.
 """
 
 from __future__ import annotations
@@ -40,11 +43,16 @@ SETTINGS = {
     "strong texture (0.3)": AngiogramParameters(collimator_px=8, background_texture=0.3),
     "faint contrast (0.12 /mm)": AngiogramParameters(collimator_px=8, vessel_attenuation_per_mm=0.12),
 }
+_BEFORE_LOCAL_NOISE = {"edge_local_noise": False, "edge_blur_px": 0.0}  # the masks before commit 9e18419
 METHODS = {"sato (default)": SegmentationParameters(),
+           "sato, edge floor in the global noise (edge_local_noise false, edge_blur_px 0)":
+               SegmentationParameters(**_BEFORE_LOCAL_NOISE),
            "sato, no densitometric width (density_radius_px 0)": SegmentationParameters(density_radius_px=0.0),
-           "sato, no local background (local_background_px 0)": SegmentationParameters(local_background_px=0.0),
+           "sato, no local background (local_background_px 0, edge_blur_px 0)":
+               SegmentationParameters(local_background_px=0.0, edge_blur_px=0.0),
            "sato, no bridging (bridge_px 0)": SegmentationParameters(bridge_px=0.0),
-           "sato, noise edge only (edge_profile 0)": SegmentationParameters(edge_profile=0.0),
+           "sato, noise edge only (edge_profile 0, edge floor in the global noise)":
+               SegmentationParameters(edge_profile=0.0, **_BEFORE_LOCAL_NOISE),
            "sato, edge_fraction 0.2": SegmentationParameters(edge_profile=0.0, edge_fraction=0.2),
            "frangi": SegmentationParameters(method="frangi")}
 
