@@ -184,7 +184,7 @@ class SegmentationParameters:
     edge_blur_px: float = field(default=0.6, metadata=_help(
         "... and at least the share of it at which a round vessel of half-width w blurred by a Gaussian "
         "of this sigma crosses its edge, px: above edge_profile / sqrt(w) on vessels under about 2 px "
-        "of half-width, where that asymptote falls too low (0: off)"))
+        "of half-width, where that asymptote falls too low (0: off; read only with edge_profile > 0)"))
     edge_local_noise: bool = field(default=True, metadata=_help(
         "edge_snr counts in the noise of the attenuation less its local background, read on the pixels "
         "around the vessels (false: the image's global noise sigma, which takes in the body texture the "
