@@ -133,7 +133,7 @@ def _textured_stenosis(narrow_radius_px: float, seed: int) -> np.ndarray:
 def test_a_stenosis_in_the_texture_comes_out_nearer_its_width():
     """The narrowed stretch's attenuation peaks at 2.7 (lumen 4 px wide) and 4.2 (5 px) noise
     sigmas of the flattened image (the texture sets sigma). With the edge level in those global
-    sigmas (``edge_local_noise`` false: the masks before 2026-12-06) it cuts the stretch (mean
+    sigmas (``edge_local_noise`` false: the masks before 9e18419) it cuts the stretch (mean
     width over 6 images, columns 94-105: 2.79 and 4.10 px); its attenuation integrated across it
     against the other vessels' widens it nearer its width. Widening only adds pixels. (With the
     default edge level in the local background's noise the plain mask is already within 0.3 px:
