@@ -218,14 +218,11 @@ class SegmentationParameters:
             raise SegmentationError(f"vessels must be one of {list(_POLARITIES)}, got {self.vessels!r}")
         if self.method not in _METHODS:
             raise SegmentationError(f"method must be one of {list(_METHODS)}, got {self.method!r}")
-        if isinstance(self.collimator, (bool, np.bool_)):
-            object.__setattr__(self, "collimator", bool(self.collimator))
-        else:
-            raise SegmentationError(f"collimator must be true or false, got {self.collimator!r}")
-        if isinstance(self.edge_local_noise, (bool, np.bool_)):
-            object.__setattr__(self, "edge_local_noise", bool(self.edge_local_noise))
-        else:
-            raise SegmentationError(f"edge_local_noise must be true or false, got {self.edge_local_noise!r}")
+        for name in ("collimator", "edge_local_noise"):
+            value = getattr(self, name)
+            if not isinstance(value, (bool, np.bool_)):
+                raise SegmentationError(f"{name} must be true or false, got {value!r}")
+            object.__setattr__(self, name, bool(value))
         for name in ("smoothing_px", "edge_fraction", "edge_profile", "edge_blur_px", "bridge_px",
                      "density_radius_px", "local_background_px"):
             _number(self, name, minimum=0.0)
@@ -477,10 +474,15 @@ def _flatten(image: np.ndarray, field: np.ndarray, params: SegmentationParameter
     if values.size == 0:
         return attenuation, float("nan")
     # The closing sits on the upper envelope of the noise: shift the background's median to 0.
-    centre = float(np.median(values))
+    centre, sigma = _median_and_sigma(values)
     attenuation[field] -= centre
-    mad = float(np.median(np.abs(values - centre)))
-    return attenuation, 1.4826 * mad
+    return attenuation, sigma
+
+
+def _median_and_sigma(values: np.ndarray) -> tuple[float, float]:
+    """The median of ``values`` and their robust noise level, 1.4826 x the median absolute deviation."""
+    centre = float(np.median(values))
+    return centre, 1.4826 * float(np.median(np.abs(values - centre)))
 
 
 def _vesselness(attenuation: np.ndarray, params: SegmentationParameters, sigmas: tuple[float, ...]) -> np.ndarray:
@@ -827,7 +829,7 @@ def _local_background(attenuation: np.ndarray, detected: np.ndarray, band: np.nd
     out[box][known] = attenuation[box][known] - total[known] / weight[known]
     residual = out[box][ring & known]
     if residual.size >= _LOCAL_NOISE_MIN_PIXELS:
-        noise = 1.4826 * float(np.median(np.abs(residual - np.median(residual))))
+        _, noise = _median_and_sigma(residual)
         if noise > 0 and math.isfinite(noise):
             return out, noise
     return out, sigma
