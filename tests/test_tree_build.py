@@ -1049,3 +1049,60 @@ def test_a_refit_brings_a_displaced_widened_tree_back_onto_the_tube(views):
     assert inner.sum() > 40 and before.min() > 0.39
     assert distance[inner].mean() < 0.1 and distance[inner].max() < 0.25
     assert np.all(np.abs(radius[inner] - radius_true[inner]) <= np.maximum(0.1, 0.1 * radius_true[inner]))
+
+
+# -- ties: the same choices whatever the last bits of the voxel edge --------------------------------
+def test_a_support_bridge_takes_the_same_cells_whatever_the_last_bits_of_the_cell_edge():
+    """The U's arms are 3 cells thick: many shortest paths of one length join its tips. Which one
+    the search takes must not hang on how the cell edge rounds (on another machine, a linear
+    algebra library gives the cube's half-edge a bit or two apart): with the half-edge moved by
+    1 to 8 units in the last place, and to a few other values near it, the same cells, and the
+    length the networkx reference gives."""
+    from angiohull.reconstruction.cube import Lattice
+    from angiohull.reconstruction.vessel_tree import SupportBridge
+
+    first = Lattice(20.0, 41)
+    cells = np.round((_support_u(first) + 20.0) / first.spacing_mm).astype(int)  # the U in cell indices
+    part_cells = cells[(cells[:, 1] < 14) & (cells[:, 0] == 28)]  # on one arm, 8 mm from the far end
+    tree_cells = cells[(cells[:, 1] > 26) & (cells[:, 0] == 8)]  # the other arm's tip
+    paths = set()
+    for half_edge in [20.0, *(20.0 + k * np.spacing(20.0) for k in (1, 2, 3, 5, 8)), 20.0 + 1e-9, 19.99999]:
+        lattice = Lattice(half_edge, 41)
+        axis = lattice.axis_mm()
+        support, part, tree = (axis[c] for c in (cells, part_cells, tree_cells))
+        path = SupportBridge(support, lattice, 80.0)(part, tree)
+        length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+        assert length == pytest.approx(_shortest_by_networkx(support, lattice.spacing_mm, part, tree), rel=1e-9)
+        paths.add(tuple(map(tuple, np.round((path + half_edge) / lattice.spacing_mm).astype(int).tolist())))
+    assert len(paths) == 1
+
+
+def test_a_skeleton_gives_the_same_tree_whatever_its_voxel_edge_and_origin():
+    """A trunk that forks into mirror-image daughters of one radius, a skeleton cycle where the
+    trunk forks and a part beyond a gap: the continuation, the spanning tree and the gap all tie.
+    Placed with 40 voxel edges and origins, the tree is the voxel-unit tree (edge 1, origin 0)
+    moved and scaled: the same branches, points and radii (to 1e-9), never the other daughter."""
+    skeleton = np.zeros((60, 50, 10), dtype=bool)
+    _voxel_line(skeleton, (5, 25, 5), (30, 25, 5))  # the trunk
+    _voxel_line(skeleton, (31, 26, 5), (45, 40, 5))  # mirror-image daughters about y = 25
+    _voxel_line(skeleton, (31, 24, 5), (45, 10, 5))
+    skeleton[31, 25, 5] = True  # a cycle of three voxels where the trunk forks
+    _voxel_line(skeleton, (48, 40, 5), (55, 40, 5))  # a part beyond a 3-voxel gap
+    depth = np.where(skeleton, np.sqrt(2.0), 0.0)
+    depth[5:10, 25, 5] = 3.0  # the wide end: the ostium
+
+    def tree_in_voxels(spacing, origin):
+        tree, _ = tree_from_skeleton(skeleton, depth * spacing, origin_mm=origin, spacing_mm=spacing)
+        return [((b.points_mm - origin) / spacing, b.radius_mm / spacing, b.parent, b.parent_point)
+                for b in tree.branches]
+
+    reference = tree_in_voxels(1.0, np.zeros(3))
+    assert len(reference) == 2
+    rng = np.random.default_rng(3)
+    for spacing in np.linspace(0.2, 0.8, 40):
+        got = tree_in_voxels(float(spacing), rng.uniform(-80.0, 80.0, 3))
+        assert len(got) == len(reference)
+        for (p, r, parent, at), (p0, r0, parent0, at0) in zip(got, reference):
+            assert (parent, at) == (parent0, at0) and p.shape == p0.shape
+            np.testing.assert_allclose(p, p0, atol=1e-9)
+            np.testing.assert_allclose(r, r0, rtol=1e-9)

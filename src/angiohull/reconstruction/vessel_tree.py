@@ -1258,8 +1258,10 @@ class SupportBridge:
             index = np.zeros(box.shape, dtype=np.int32)  # untouched pages are never allocated
             index[tuple(voxels.T)] = np.arange(1, len(voxels) + 1, dtype=np.int32)
             heads, tails, lengths = neighbour_edges(voxels, box.shape)
-            # both directions stored: a directed search needs no transpose per call
-            graph = sparse.coo_matrix((np.concatenate([self._h * lengths] * 2),
+            # both directions stored: a directed search needs no transpose per call; lengths in
+            # cells, not mm: a lattice holds many shortest paths of one length, and in mm the last
+            # bit of the cell edge (which can differ between machines) chose among them
+            graph = sparse.coo_matrix((np.concatenate([lengths] * 2),
                                        (np.concatenate([heads, tails]), np.concatenate([tails, heads]))),
                                       shape=(len(voxels), len(voxels))).tocsr()
             self._graphs[grown] = (index, self._origin + self._h * voxels, graph)
@@ -1289,7 +1291,7 @@ class SupportBridge:
             gap = float(cKDTree(points[targets]).query(points[sources])[0].min())
             for limit in _widening_limits(1.5 * gap + 2.0 * self._h, self._limit):
                 distance, predecessors, _ = dijkstra(graph, directed=True, indices=sources, min_only=True,
-                                                     limit=limit, return_predecessors=True)
+                                                     limit=limit / self._h, return_predecessors=True)
                 best = targets[np.argmin(distance[targets])]
                 if np.isfinite(distance[best]):
                     path = [int(best)]

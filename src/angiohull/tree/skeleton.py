@@ -36,13 +36,24 @@ volume) and a radius estimate per voxel (for example the volume's distance trans
    segment starts a child branch at the junction voxel (its first point is the parent's point
    there). Branches are listed parents first.
 
-Positions are voxel centres (``origin_mm + spacing_mm * index``); radii are the given estimates.
-Smoothing, radii from the views and end extension are the caller's business
-(:mod:`angiohull.reconstruction.vessel_tree`).
+Positions are voxel centres (``origin_mm + spacing_mm * index``); radii are the given estimates
+(rounded to 1e-9 voxel). Smoothing, radii from the views and end extension are the caller's
+business (:mod:`angiohull.reconstruction.vessel_tree`).
+
+**Ties.** On a voxel grid many candidates tie exactly: edges of one length between voxels of one
+radius, gaps of one length, mirror-image continuations at a symmetric fork, radii that are square
+roots of whole numbers. Every choice is therefore made in voxel units, on radii, weights, lengths
+and scores rounded to ``_TIE_DECIMALS`` decimals, and dot products are written out rather than left
+to a linear-algebra library; the tree is then placed in millimetres. In millimetres the ties were
+broken by the last bits of the voxel edge, which come from a linear-algebra solve (the cube of
+interest) and differ between machines: the same views gave a different tree on another machine or
+with another OpenBLAS kernel (119 of 120 generated trees from two views, Dice3D up to 19.5 points
+apart; docs/tree-method.md, "Reproducibility").
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable
@@ -57,6 +68,10 @@ from .model import Branch, VesselTree
 from .voxels import coordinates, neighbour_edges
 
 __all__ = ["SkeletonSettings", "SkeletonInfo", "tree_from_skeleton", "rerooted"]
+
+_TIE_DECIMALS = 9
+"""Decimals (of a voxel, or of a ratio) that the choices between candidates are rounded to (module
+notes, "Ties")."""
 
 @dataclass(frozen=True)
 class SkeletonSettings:
@@ -171,19 +186,22 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
     info = SkeletonInfo(skeleton_voxels=len(voxels))
     if len(voxels) < 2:
         raise TreeError(f"the skeleton has {len(voxels)} voxel(s); a vessel tree needs at least two")
-    points = np.asarray(origin_mm, dtype=np.float64) + spacing_mm * voxels
     radius = np.asarray(radius_mm, dtype=np.float64)
     if radius.shape == skeleton.shape:
         radius = radius[tuple(voxels.T)]
     elif radius.shape != (len(voxels),):
         raise TreeError(f"radius_mm must have the skeleton's shape {skeleton.shape} or one value per skeleton "
                         f"voxel ({len(voxels)},), got shape {radius.shape}")
-    radius = np.maximum(radius, 0.5 * spacing_mm)
+    # every choice below is made in voxel units, on rounded values (module notes, "Ties")
+    spacing_mm = float(spacing_mm)
+    origin_mm = np.asarray(origin_mm, dtype=np.float64)
+    points = voxels.astype(np.float64)  # voxel units until the branches are built
+    radius = np.maximum(np.round(radius / spacing_mm, _TIE_DECIMALS), 0.5)
     n = len(voxels)
 
     # 1. graph and spanning tree
     heads, tails, lengths = neighbour_edges(voxels, skeleton.shape)
-    weights = lengths / (radius[heads] + radius[tails])
+    weights = np.round(lengths / (radius[heads] + radius[tails]), _TIE_DECIMALS)
     graph = sparse.coo_matrix((weights, (heads, tails)), shape=(n, n)).tocsr()
     spanning = minimum_spanning_tree(graph).tocoo()
     info.cycles_cut = int(len(heads) - spanning.nnz)
@@ -194,7 +212,7 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
     count, part = connected_components(sparse.coo_matrix((np.ones(len(heads)), (heads, tails)), shape=(n, n)),
                                        directed=False)
     info.parts = int(count)
-    part_length = np.bincount(part[heads], weights=edge_length, minlength=count).astype(np.float64)
+    part_length = np.round(np.bincount(part[heads], weights=edge_length, minlength=count), _TIE_DECIMALS)
     part_length += 1e-9 * np.bincount(part, minlength=count)  # single voxels: order by size
     order = np.argsort(-part_length, kind="stable")
     alive = part == order[0]
@@ -203,7 +221,7 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
     extra_radius: list[np.ndarray] = []
     pending = {int(p): np.flatnonzero(part == p) for p in order[1:]}
     dropped: list[tuple[int, np.ndarray]] = []
-    reach = settings.max_gap_voxels * spacing_mm
+    reach = settings.max_gap_voxels
     while pending:
         # the part nearest to the tree joins first (joining the largest first, a part whose gap to
         # the tree's vessel lies in a smaller part not joined yet went the long way round through
@@ -228,11 +246,12 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
             if gap <= radius[a] + radius[b] + reach:
                 best = (gap, p, a, b, None)
                 break  # a straight join costs its gap, the least of what is left
-            path = None if bridge is None else bridge(points[pending[p]], points[kept])
+            path = None if bridge is None else bridge(origin_mm + spacing_mm * points[pending[p]],
+                                                      origin_mm + spacing_mm * points[kept])
             if path is None or len(path) < 2:
                 continue
-            path = np.asarray(path, dtype=np.float64)
-            length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+            path = (np.asarray(path, dtype=np.float64) - origin_mm) / spacing_mm
+            length = round(float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum()), _TIE_DECIMALS)
             if best is None or length < best[0]:
                 members = pending[p]
                 a = members[int(np.argmin(np.linalg.norm(points[members] - path[0], axis=1)))]
@@ -260,8 +279,8 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
     for p, members in [*dropped, *pending.items()]:  # out of reach of the tree
         info.parts_dropped += 1
         info.voxels_dropped += len(members)
-        info.length_dropped_mm += float(part_length[p])
-        info.longest_dropped_mm = max(info.longest_dropped_mm, float(part_length[p]))
+        info.length_dropped_mm += float(part_length[p]) * spacing_mm
+        info.longest_dropped_mm = max(info.longest_dropped_mm, float(part_length[p]) * spacing_mm)
     if extra_points:
         added = sum(len(x) for x in extra_points)
         points = np.vstack([points, *extra_points])
@@ -291,7 +310,7 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
             if not (tip_first or tip_last):
                 continue
             junction = path[-1] if tip_first else path[0]
-            ratio = _path_length(points, path) / radius[junction]
+            ratio = round(_path_length(points, path) / radius[junction], _TIE_DECIMALS)
             if ratio <= settings.spur_radii:
                 spurs.append((ratio, junction, path[:-1] if tip_first else path[1:]))
         if not spurs:
@@ -316,16 +335,17 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
     for path in segments:
         for oriented in (path, path[::-1]):
             if degree[oriented[0]] == 1:
-                window = _window(points, oriented, settings.root_window_mm)
-                tips.append((float(radius[window].mean()), oriented[0]))
+                window = _window(points, oriented, settings.root_window_mm / spacing_mm)
+                tips.append((round(float(radius[window].mean()), _TIE_DECIMALS), oriented[0]))
     if tips:
         root = max(tips)[1]
     else:  # a closed loop cannot survive the spanning tree; a lone point has no tip
         root = int(np.flatnonzero(alive)[0])
 
-    # 5. branches, parents first
-    tree = _branches_from(points, radius, neighbours, root, settings.direction_window_mm, spacing_mm)
-    return tree, info
+    # 5. branches, parents first (in voxel units, then placed in millimetres)
+    tree = _branches_from(points, radius, neighbours, root, settings.direction_window_mm / spacing_mm, 1.0)
+    return VesselTree(tuple(Branch(origin_mm + spacing_mm * b.points_mm, spacing_mm * b.radius_mm, b.parent,
+                                   b.parent_point, b.name) for b in tree.branches)), info
 
 
 def _branches_from(points: np.ndarray, radius: np.ndarray, neighbours: list[list[int]], root: int,
@@ -431,7 +451,14 @@ def _continuation(points: np.ndarray, radius: np.ndarray, neighbours: list[list[
         widths.append(float(radius[ahead[1:]].mean()))
     widest = max(widths)
     for direction, width in zip(directions, widths):
-        norm = np.linalg.norm(incoming) * np.linalg.norm(direction)
-        cosine = float(incoming @ direction / norm) if norm > 0 else 0.0
-        scores.append(cosine + 0.5 * width / widest)
+        # written out, not ``@``: a linear-algebra library's dot product may round differently
+        # from machine to machine, and mirror-image continuations tie (module notes, "Ties")
+        norm = math.sqrt(_dot3(incoming, incoming) * _dot3(direction, direction))
+        cosine = _dot3(incoming, direction) / norm if norm > 0 else 0.0
+        scores.append(round(cosine + 0.5 * width / widest, _TIE_DECIMALS))
     return onward[int(np.argmax(scores))]
+
+
+def _dot3(a: np.ndarray, b: np.ndarray) -> float:
+    """The dot product of two 3-vectors in plain floating point (the same on every machine)."""
+    return float(a[0]) * float(b[0]) + float(a[1]) * float(b[1]) + float(a[2]) * float(b[2])
