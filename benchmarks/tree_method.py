@@ -89,8 +89,8 @@ def _case(kind: str, index: int, setup: str):
     raise RuntimeError(f"no {kind} tree for index {index}")
 
 
-def _run(task: tuple[str, int, str]) -> list[dict]:
-    kind, index, setup = task
+def _run(task: tuple[str, int, str, float]) -> list[dict]:
+    kind, index, setup, cube_scale = task
     seed, case = _case(kind, index, setup)
     truth = case.tree.vessel_tree()
     projections, masks = [v.projection for v in case.views], [v.mask for v in case.views]
@@ -103,22 +103,27 @@ def _run(task: tuple[str, int, str]) -> list[dict]:
                  for i, v in enumerate(case.views)]
     row = {"kind": kind, "index": index, "seed": seed, "setup": setup,
            "views": [v.carm.clinical_name() for v in case.views]}
-    return _methods(row, projections, masks, case.surface_points_mm, truth)
+    return _methods(row, projections, masks, case.surface_points_mm, truth, cube_scale)
 
 
-def _methods(row: dict, projections, masks, truth_points_mm: np.ndarray, truth_tree=None) -> list[dict]:
+def _methods(row: dict, projections, masks, truth_points_mm: np.ndarray, truth_tree=None,
+             cube_scale: float = 1.0) -> list[dict]:
     """One row per method: ``row`` plus the method, its time, Dice3D and Chamfer against
-    ``truth_points_mm``, the tree scores against ``truth_tree`` when given, or the error."""
+    ``truth_points_mm``, the tree scores against ``truth_tree`` when given, or the error. With
+    ``cube_scale`` the cube of interest's half-edge is that many times the views' own."""
+    from angiohull.geometry import cube_half_edge_mm
     from angiohull.metrics import scores_3d
     from angiohull.metrics.tree import tree_scores
     from angiohull.reconstruction import reconstruct
 
+    half_edge = None if cube_scale == 1.0 else cube_scale * cube_half_edge_mm(projections)
     rows = []
     for method, preset in METHODS:
         out = {**row, "method": method, "preset": preset}
         start = time.perf_counter()
         try:
-            result = reconstruct(projections, masks, method=method, preset=preset, centerlines=False)
+            result = reconstruct(projections, masks, method=method, preset=preset, centerlines=False,
+                                 half_edge_mm=half_edge)
         except Exception as exc:  # noqa: BLE001 - a failed case is a row
             rows.append({**out, "error": f"{type(exc).__name__}: {exc}"})
             continue
@@ -291,6 +296,10 @@ def main() -> None:
     parser.add_argument("--setup", action="append", choices=list(SETUPS), default=None,
                         help="only this generated setup (repeatable): its section alone, without the authors' studies, "
                              "the XCAT vessel and the time section")
+    parser.add_argument("--cube-scale", type=float, default=1.0, metavar="S",
+                        help="the cube of interest's half-edge S times the views' own (default 1): the same views on "
+                             "another lattice, to measure how far a setup's scores move when nothing but the lattice "
+                             "does (docs/tree-method.md, \"Reproducibility\"); generated setups only, like --setup")
     args = parser.parse_args()
     if args.first_tree < 0 or args.trees < 0 or args.first_tree + args.trees > 1000:
         parser.error("--trees and --first-tree count from 0, and together stay within 1000 (the seeds of a kind's "
@@ -298,11 +307,16 @@ def main() -> None:
     if args.setup is not None and args.timing_only:
         parser.error("--setup and --timing-only exclude each other (a setup's section has no time section)")
     setups = list(SETUPS) if args.setup is None else args.setup
-    if args.setup is not None:
+    if not 0.5 <= args.cube_scale <= 2.0:
+        parser.error(f"--cube-scale must lie within [0.5, 2] (the cube must hold the vessels), got {args.cube_scale}")
+    if args.cube_scale != 1.0 and args.timing_only:
+        parser.error("--cube-scale and --timing-only exclude each other (the time section keeps the views' own cube)")
+    restricted = args.setup is not None or args.cube_scale != 1.0
+    if restricted:
         args.no_shared = True
     start = time.perf_counter()
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    tasks = [] if args.timing_only else [(kind, i, setup) for setup in setups for kind in ("rca", "left")
+    tasks = [] if args.timing_only else [(kind, i, setup, args.cube_scale) for setup in setups for kind in ("rca", "left")
                                          for i in range(args.first_tree, args.first_tree + args.trees)]
     peer_folder = SHARED / "benchmarks" / "peer-synthetic"
     studies = (sorted(peer_folder.glob("*_*_*")) if peer_folder.is_dir() and not (args.no_shared or args.timing_only)
@@ -316,11 +330,12 @@ def main() -> None:
         xcat_rows = list(pool.map(_xcat, xcat_tasks))
     rows = rows if rows else []
     load = os.getloadavg()[0]  # what else ran on the machine as the time section began
-    timing = _timing(args.repeats) if args.setup is None else []
+    timing = _timing(args.repeats) if not restricted else []
     elapsed = time.perf_counter() - start
     command = "--timing-only" if args.timing_only else f"--trees {args.trees} --workers {args.workers}"
     command += f" --first-tree {args.first_tree}" if args.first_tree and not args.timing_only else ""
     command += "".join(f' --setup "{setup}"' for setup in args.setup or ())
+    command += f" --cube-scale {args.cube_scale:g}" if args.cube_scale != 1.0 else ""
     lines = ["# Results: the tree method against the visual hull", "",
              f"Produced by `OPENBLAS_NUM_THREADS=1 python benchmarks/tree_method.py {command}` on {datetime.date.today()}, commit {commit}, {platform.machine()} with "
              f"{os.cpu_count()} cores, Python {platform.python_version()} ({library_versions()}), in {elapsed:.0f} s. The same "
