@@ -235,14 +235,15 @@ def _views(setup_views: str, case):
     return case.views if setup_views == "3 views" else case.views[:2]
 
 
-def _run_tree(task: tuple[str, int]) -> list[dict]:
+def _run_tree(task: tuple[str, int, float]) -> list[dict]:
+    from angiohull.geometry import cube_half_edge_mm
     from angiohull.qca import QcaSettings, analyse_tree
     from angiohull.reconstruction import reconstruct
     from angiohull.segmentation import segment_vessels
     from angiohull.synthetic import SynthOptions, make_case
     from angiohull.synthetic.angiogram import AngiogramParameters, render_angiogram
 
-    kind, index = task
+    kind, index, cube_scale = task
     seed, params, passed = _tree_params(kind, index)
     case = make_case(SynthOptions(kind=kind, tortuosity=LEVELS[index % 3], views=VIEWS3, seed=seed),
                      tree_params=params)
@@ -260,10 +261,11 @@ def _run_tree(task: tuple[str, int]) -> list[dict]:
         projections = [v.carm.projection() for v in views]
         row = {"kind": kind, "index": index, "seed": seed, "seeds_passed": passed, "views": n_views,
                "source": source, "method": method, "true_lesions": true_lesions}
+        half_edge = None if cube_scale == 1.0 else cube_scale * cube_half_edge_mm(projections)
         t0 = time.perf_counter()
         try:
-            result = (reconstruct(projections, masks, preset="refined") if method == "hull"
-                      else reconstruct(projections, masks, method="tree", centerlines=False))
+            result = (reconstruct(projections, masks, preset="refined", half_edge_mm=half_edge) if method == "hull"
+                      else reconstruct(projections, masks, method="tree", centerlines=False, half_edge_mm=half_edge))
         except Exception as exc:  # noqa: BLE001 - a failed case is a row, not a crash
             rows.append({**row, "error": f"{type(exc).__name__}: {exc}"})
             continue
@@ -365,7 +367,8 @@ def markdown(summary: dict, meta: dict) -> str:
     keys = list(summary)
     lines = [f"# Quantitative coronary analysis against the truth ({meta['date']})", "",
              f"Made by `OPENBLAS_NUM_THREADS=1 python benchmarks/qca.py --trees {meta['trees']} --workers "
-             f"{meta['workers']}` at commit {meta['commit']} on {meta['machine']}, Python {meta['python']} "
+             f"{meta['workers']}" + (f" --cube-scale {meta['cube_scale']:g}" if meta.get("cube_scale", 1.0) != 1.0 else "")
+             + f"` at commit {meta['commit']} on {meta['machine']}, Python {meta['python']} "
              f"({meta.get('libraries', 'libraries not recorded')}), in "
              f"{meta['wall_s']:.0f} s. {2 * meta['trees']} generated trees ({meta['trees']} RCA, {meta['trees']} "
              f"left) with 1-3 stenoses of 30-80 %, {meta['true_lesions']} stenoses in all, {meta['lesions_50']} of them "
@@ -424,8 +427,14 @@ def main() -> None:
     parser.add_argument("--trees", type=int, default=30, help="trees of each kind (default 30)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--output", type=Path, default=Path("docs/results/qca.md"))
+    parser.add_argument("--cube-scale", type=float, default=1.0, metavar="S",
+                        help="reconstruct on the cube of interest's half-edge S times the views' own (default 1): the "
+                             "same views on another lattice, to measure how far the results move when nothing but the "
+                             "lattice does (docs/qca.md)")
     args = parser.parse_args()
-    tasks = [(kind, i) for i in range(args.trees) for kind in ("rca", "left")]
+    if not 0.5 <= args.cube_scale <= 2.0:
+        parser.error(f"--cube-scale must lie within [0.5, 2] (the cube must hold the vessels), got {args.cube_scale}")
+    tasks = [(kind, i, args.cube_scale) for i in range(args.trees) for kind in ("rca", "left")]
     t0 = time.perf_counter()
     rows: list[dict] = []
     with ProcessPoolExecutor(args.workers) as pool:
@@ -442,7 +451,7 @@ def main() -> None:
         commit = "unknown"
     meta = {"date": datetime.date.today().isoformat(), "machine": f"{platform.machine()}, {os.cpu_count()} cores",
             "commit": commit, "python": platform.python_version(), "libraries": library_versions(),
-            "trees": args.trees, "workers": args.workers, "wall_s": wall,
+            "trees": args.trees, "workers": args.workers, "cube_scale": args.cube_scale, "wall_s": wall,
             "true_lesions": sum(len(r["true_lesions"]) for r in first),
             "lesions_50": sum(t["diameter_stenosis_pct"] >= 50 for r in first for t in r["true_lesions"]),
             "seeds_passed": sum(r["seeds_passed"] for r in first)}
