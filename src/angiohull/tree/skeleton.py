@@ -137,11 +137,12 @@ def _path_length(points: np.ndarray, path: list[int]) -> float:
     return float(np.linalg.norm(np.diff(points[path], axis=0), axis=1).sum())
 
 
-def _window(points: np.ndarray, path: list[int], window_mm: float) -> list[int]:
-    """The leading nodes of ``path`` within ``window_mm`` of arc length (at least two)."""
+def _window(points: np.ndarray, path: list[int], window: float) -> list[int]:
+    """The leading nodes of ``path`` within ``window`` of arc length, in the units of ``points`` (at
+    least two)."""
     steps = np.linalg.norm(np.diff(points[path], axis=0), axis=1)
     arc = np.concatenate([[0.0], np.cumsum(steps)])
-    count = max(2, int(np.searchsorted(arc, window_mm, side="right")))
+    count = max(2, int(np.searchsorted(arc, window, side="right")))
     return path[:count]
 
 
@@ -349,10 +350,12 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
 
 
 def _branches_from(points: np.ndarray, radius: np.ndarray, neighbours: list[list[int]], root: int,
-                   window_mm: float, spacing_mm: float) -> VesselTree:
-    """The tree of a graph without cycles, from ``root`` (module notes, step 5)."""
+                   window: float, spacing: float) -> VesselTree:
+    """The tree of a graph without cycles, from ``root`` (module notes, step 5); ``window`` (the
+    continuation's) and ``spacing`` (between neighbouring nodes) in the units of ``points``: voxels
+    from :func:`tree_from_skeleton`, mm from :func:`rerooted`."""
     n = len(points)
-    ahead_nodes = int(np.ceil(window_mm / spacing_mm)) + 2
+    ahead_nodes = int(np.ceil(window / spacing)) + 2
     branches: list[Branch] = []
     queue: deque[tuple[list[int], int | None, int | None]] = deque([([root], None, None)])
     visited = np.zeros(n, dtype=bool)
@@ -369,7 +372,7 @@ def _branches_from(points: np.ndarray, radius: np.ndarray, neighbours: list[list
             if len(onward) == 1:
                 nxt = onward[0]
             else:
-                nxt = _continuation(points, radius, neighbours, visited, path, onward, window_mm, ahead_nodes)
+                nxt = _continuation(points, radius, neighbours, visited, path, onward, window, ahead_nodes)
                 for w in onward:
                     if w != nxt:
                         visited[w] = True
@@ -437,16 +440,16 @@ def _follow(neighbours: list[list[int]], visited: np.ndarray, start: int, first:
 
 
 def _continuation(points: np.ndarray, radius: np.ndarray, neighbours: list[list[int]], visited: np.ndarray,
-                  path: list[int], onward: list[int], window_mm: float, nodes: int) -> int:
+                  path: list[int], onward: list[int], window: float, nodes: int) -> int:
     """The outgoing neighbour that best continues ``path`` (module notes, step 5)."""
     here = path[-1]
-    back = _window(points, path[::-1], window_mm)
+    back = _window(points, path[::-1], window)
     incoming = points[here] - points[back[-1]]
     scores = []
     widths = []
     directions = []
     for w in onward:
-        ahead = _window(points, _follow(neighbours, visited, here, w, nodes), window_mm)
+        ahead = _window(points, _follow(neighbours, visited, here, w, nodes), window)
         directions.append(points[ahead[-1]] - points[here])
         widths.append(float(radius[ahead[1:]].mean()))
     widest = max(widths)
