@@ -23,6 +23,7 @@ from angiohull.geometry import CArmGeometry, parse_clinical_angles
 from angiohull.qca import (BRANCH_COLUMNS, LESION_COLUMNS, ProfileSettings, QcaSettings, ViewMapSettings,
                            analyse_bifurcations, analyse_tree, branch_profile, foreshortening, segment_view_map,
                            view_map, window_lesion_length_mm)
+from angiohull.qca.profile import smoothed_along
 from angiohull.qca.vessels import VesselSettings, tree_vessels
 from angiohull.qca.views import carm_for, carm_frames, view_report
 from angiohull.tree import Branch, VesselTree
@@ -235,6 +236,55 @@ def test_noise_of_one_percent_reports_no_lesion(seed):
     # measured over these seeds: the reference within 0.3 % of the taper everywhere
     assert np.abs(profile.reference_mm() / taper(a) - 1).max() <= 0.02
     assert 0.5 * 0.027 <= profile.reference.noise_mm <= 1.5 * 0.027  # ~1 % of the ~2.7 mm diameter
+
+
+@pytest.mark.parametrize("sigma", [0.3, 0.5, 1.0])
+def test_smoothed_along_is_the_normalised_gaussian_average_within_four_sigma(sigma):
+    rng = np.random.default_rng(3)
+    a = np.cumsum(rng.uniform(0.1, 0.7, size=120))  # uneven steps
+    v = rng.normal(size=a.size)
+    got = smoothed_along(a, v, sigma)
+    for i in range(a.size):  # the definition, sample by sample
+        w = [math.exp(-0.5 * ((a[j] - a[i]) / sigma) ** 2) if abs(a[j] - a[i]) <= 4 * sigma else 0.0
+             for j in range(a.size)]
+        assert got[i] == pytest.approx(sum(wj * vj for wj, vj in zip(w, v)) / sum(w), abs=1e-12)
+    # an average: a constant stays, and on even steps a line stays wherever the window is whole
+    np.testing.assert_allclose(smoothed_along(a, np.full(a.size, 2.5), sigma), 2.5, atol=1e-12)
+    even = arcs(30.0, 0.25)
+    whole = (even >= 4 * sigma) & (even <= 30.0 - 4 * sigma)
+    np.testing.assert_allclose(smoothed_along(even, taper(even), sigma)[whole], taper(even)[whole], atol=1e-12)
+    np.testing.assert_array_equal(smoothed_along(a, v, 0.0), v)
+
+
+def test_a_dip_of_one_or_two_samples_is_no_lesion_but_a_stenosis_is_found_and_measured_unsmoothed():
+    # 0.5 mm steps. With sigma 0.5 mm the Gaussian's weights at 0, 0.5, 1, 1.5, 2 mm are 1, e^-1/2,
+    # e^-2, e^-9/2, e^-8: a dip keeps 1 / 2.507 of its depth over one sample and 1.607 / 2.507 over
+    # two, so a 30 % dip is found on 12.0 % and 19.2 %: under the 20 % that starts a lesion.
+    step, c, s, extent = 0.5, 40.0, 0.4, 6.0
+    a = arcs(60.0, step)
+    d = taper(a) * window("cosine", a - c, s, extent)
+    d[a == 12.0] *= 0.7
+    d[(a == 24.0) | (a == 24.5)] *= 0.7
+    tree = VesselTree((Branch(polyline(a), 0.5 * d),))
+    (les,) = branch_profile(tree, 0).lesions
+    # measured on the profile: the MLD is the window's centre sample, not the smoothed minimum
+    assert les.mld_arc_mm == pytest.approx(c, abs=1e-12)
+    assert les.mld_mm == pytest.approx(float(taper(c)) * (1 - s), abs=1e-12)
+    assert smoothed_along(a, d, 0.5).min() > les.mld_mm + 0.05
+    assert abs(les.diameter_stenosis_pct - 100 * s) <= 100 * (1 - s) * REF_TOL_MM / float(taper(c)) + 1e-9
+    assert abs(les.length_mm - window_lesion_length_mm("cosine", extent)) <= step
+    # found on the profile itself, the two dips are lesions of their own (30 %; the MLD of the
+    # two-sample dip is its distal sample, where the taper is thinner)
+    unsmoothed = ProfileSettings(detection_smoothing_mm=0.0)
+    dips = branch_profile(tree, 0, settings=unsmoothed).lesions
+    assert [round(x.mld_arc_mm, 6) for x in dips] == [12.0, 24.5, 40.0]
+    assert [x.diameter_stenosis_pct for x in dips[:2]] == pytest.approx([30.0, 30.0], abs=0.2)
+    # three samples (1 mm) keep 2.213 / 2.507 of the dip: 26.5 % is found, and measured at 30 %
+    d[a == 12.5] = taper(12.5) * 0.7
+    d[a == 13.0] = taper(13.0) * 0.7
+    found = branch_profile(VesselTree((Branch(polyline(a), 0.5 * d),)), 0).lesions
+    assert [round(x.mld_arc_mm, 6) for x in found] == [13.0, 40.0]
+    assert found[0].diameter_stenosis_pct == pytest.approx(30.0, abs=0.2)
 
 
 # -- 3. open-ended narrowings ---------------------------------------------------------------------
@@ -671,6 +721,9 @@ def test_bad_input_raises_one_clear_qca_error():
         segment_view_map(tree, 0, settings=QcaSettings(view_map=ViewMapSettings(primary_range_deg=(-200, 0))))
     with pytest.raises(QcaError, match=r"edge_fraction.*1\.5"):
         ProfileSettings(edge_fraction=1.5)
+    for bad in (-0.5, math.nan, math.inf):
+        with pytest.raises(QcaError, match=r"detection_smoothing_mm"):
+            ProfileSettings(detection_smoothing_mm=bad)
 
 
 def test_a_short_side_branch_is_kept_without_reference():

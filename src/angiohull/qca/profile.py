@@ -15,18 +15,26 @@ Notation: a branch of M points has arc length ``a`` (mm, 0 at its first point) a
    thus drop out of the fit. A profile shorter than ``min_reference_length_mm`` or with fewer
    than ``min_reference_points`` points has no reference (:class:`~angiohull.errors.QcaError`
    when it is asked for).
-3. **Lesions.** The narrowing is ``n(a) = 1 - d(a) / ref(a)``. Every local maximum of ``n`` of at
-   least ``min_stenosis_pct`` percent, taken from the deepest down, starts a lesion that extends on
-   each side to where ``n`` falls below ``edge_fraction`` of that maximum (the crossing
-   interpolated linearly between points); a maximum inside an earlier lesion, or whose extent
-   runs into one before falling below its own edge level, adds nothing (it is a shoulder of that
-   deeper lesion). A
-   narrowing that still exceeds its edge level at an end of the analysed profile is not a focal
-   lesion (a tapering tip, a vessel cut at the image border) and is not reported.
-4. **Per lesion**: the minimal lumen diameter ``MLD = min d`` over the lesion, its point (the
-   patient-frame ``x, y, z`` of that centerline point), the reference diameter ``ref`` there, the
-   percent diameter stenosis ``100 (1 - MLD / ref)`` and area stenosis ``100 (1 - (MLD / ref)^2)``,
-   the start and end arc lengths and the lesion length ``end - start``.
+3. **Lesions.** The narrowing is ``n(a) = 1 - d(a) / ref(a)``. Lesions are *found* on the
+   narrowing of the profile smoothed along the arc, ``n_s(a) = 1 - d_s(a) / ref(a)`` with ``d_s``
+   a Gaussian average of ``d`` of ``detection_smoothing_mm`` (sigma, mm; truncated at 4 sigma,
+   normalised where it reaches an end): a dip of one or two samples, which the diameter's own
+   noise makes, does not start a lesion, while a stenosis, millimetres long, barely changes.
+   Every local maximum of ``n_s`` of at least ``min_stenosis_pct`` percent, taken from the
+   deepest down, starts a lesion that spans on each side the samples where ``n_s`` stays above
+   ``edge_fraction`` of that maximum; a maximum inside an earlier lesion, or whose span runs into
+   one before falling below its own edge level, adds nothing (it is a shoulder of that deeper
+   lesion). A narrowing that still exceeds its edge level at an end of the analysed profile is not
+   a focal lesion (a tapering tip, a vessel cut at the image border) and is not reported.
+4. **Per lesion**, *measured* on the profile itself, not the smoothed one: the minimal lumen
+   diameter ``MLD = min d`` over the lesion's span, its point (the patient-frame ``x, y, z`` of
+   that centerline point), the reference diameter ``ref`` there, the percent diameter stenosis
+   ``100 (1 - MLD / ref)`` and area stenosis ``100 (1 - (MLD / ref)^2)``; the start and end arc
+   lengths where ``n`` falls below ``edge_fraction`` of its largest value over the span, walking
+   out from that sample (the crossing interpolated linearly between points; where ``n`` stays
+   above that level up to an end of the profile or into another lesion's span, the smoothed
+   narrowing's crossing), and the lesion length ``end - start``. ``detection_smoothing_mm = 0``
+   finds lesions on the profile itself.
 
 For the synthetic generator's windows (:mod:`angiohull.synthetic.tree`) of severity ``s`` and
 extent ``L`` on a straight taper, these definitions give %DS = 100 s and, with the default edge
@@ -45,8 +53,8 @@ import numpy as np
 from .. import _validation as _v
 from ..errors import QcaError
 
-__all__ = ["ProfileSettings", "ReferenceFit", "Lesion", "DiameterProfile", "reference_fit", "find_lesions",
-           "window_lesion_length_mm"]
+__all__ = ["ProfileSettings", "ReferenceFit", "Lesion", "DiameterProfile", "reference_fit", "smoothed_along",
+           "find_lesions", "window_lesion_length_mm"]
 
 
 @dataclass(frozen=True)
@@ -54,6 +62,7 @@ class ProfileSettings:
     """Settings of the diameter-profile analysis (module notes); the same for every tree."""
 
     min_stenosis_pct: float = 20.0  # a narrowing of less than this is not reported as a lesion
+    detection_smoothing_mm: float = 0.5  # sigma of the Gaussian along the arc that lesions are found on (0: none)
     edge_fraction: float = 0.25  # a lesion ends where the narrowing falls below this share of its maximum
     k_low: float = 2.5  # residuals below -k_low * noise are left out of the reference fit (lesions)
     k_high: float = 3.5  # residuals above +k_high * noise are left out too (flares at bifurcations)
@@ -67,6 +76,9 @@ class ProfileSettings:
             _v.positive_finite(getattr(self, name), f"ProfileSettings.{name}", error=QcaError)
         if not 0.0 < _v.finite(self.min_stenosis_pct, "ProfileSettings.min_stenosis_pct", error=QcaError) < 100.0:
             raise QcaError(f"ProfileSettings.min_stenosis_pct must lie in (0, 100), got {self.min_stenosis_pct!r}")
+        if not _v.finite(self.detection_smoothing_mm, "ProfileSettings.detection_smoothing_mm", error=QcaError) >= 0.0:
+            raise QcaError(f"ProfileSettings.detection_smoothing_mm must be >= 0 (0: no smoothing), got "
+                           f"{self.detection_smoothing_mm!r}")
         if not 0.0 < _v.finite(self.edge_fraction, "ProfileSettings.edge_fraction", error=QcaError) < 1.0:
             raise QcaError(f"ProfileSettings.edge_fraction must lie in (0, 1), got {self.edge_fraction!r}")
         _v.positive_int(self.min_reference_points, "ProfileSettings.min_reference_points", error=QcaError)
@@ -196,24 +208,38 @@ def _crossing(arc: np.ndarray, values: np.ndarray, i_in: int, i_out: int, level:
     return float(arc[i_in] + t * (arc[i_out] - arc[i_in]))
 
 
-def find_lesions(branch: int, arc_mm: np.ndarray, diameter_mm: np.ndarray, reference_mm: np.ndarray,
-                 points_mm: np.ndarray, settings: ProfileSettings = ProfileSettings()) -> tuple[Lesion, ...]:
-    """The lesions of an analysed profile (module notes, steps 3 and 4), ordered along the branch.
-
-    ``arc_mm``, ``diameter_mm``, ``reference_mm`` are (M,), ``points_mm`` (M, 3): the analysed
-    samples only, contiguous.
-    """
+def smoothed_along(arc_mm: np.ndarray, values: np.ndarray, sigma_mm: float) -> np.ndarray:
+    """A Gaussian average of ``values`` along the arc: at each sample, the mean of the samples
+    within ``4 sigma_mm`` of arc, weighted ``exp(-(delta a)^2 / (2 sigma_mm^2))`` and normalised
+    (so that it stays an average where the window reaches an end). ``sigma_mm = 0``: a copy."""
     arc = np.asarray(arc_mm, dtype=np.float64)
-    diameter = np.asarray(diameter_mm, dtype=np.float64)
-    reference = np.asarray(reference_mm, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    if sigma_mm <= 0.0 or arc.size < 2:
+        return values.copy()
+    reach = 4.0 * sigma_mm
+    first = np.searchsorted(arc, arc - reach, side="left")
+    stop = np.searchsorted(arc, arc + reach, side="right")
+    span = int((stop - first).max())
+    index = first[:, None] + np.arange(span)[None, :]
+    inside = index < stop[:, None]
+    index = np.minimum(index, arc.size - 1)
+    weight = np.where(inside, np.exp(-0.5 * ((arc[index] - arc[:, None]) / sigma_mm) ** 2), 0.0)
+    return (weight * values[index]).sum(axis=1) / weight.sum(axis=1)
+
+
+def _narrowing(diameter: np.ndarray, reference: np.ndarray) -> np.ndarray:
     narrowing = 1.0 - diameter / np.where(reference > 0, reference, np.nan)
-    narrowing = np.where(np.isfinite(narrowing), narrowing, 0.0)
-    m = len(arc)
+    return np.where(np.isfinite(narrowing), narrowing, 0.0)
+
+
+def _spans(narrowing: np.ndarray, settings: ProfileSettings) -> list[tuple[int, int]]:
+    """The closed lesions' sample spans ``(left, right)`` on a narrowing (module notes, step 3)."""
+    m = len(narrowing)
     threshold = settings.min_stenosis_pct / 100.0
     padded = np.concatenate([[-np.inf], narrowing, [-np.inf]])
     peaks = np.flatnonzero((narrowing >= threshold) & (narrowing >= padded[:-2]) & (narrowing >= padded[2:]))
     claimed = np.zeros(m, dtype=bool)
-    lesions: list[Lesion] = []
+    spans = []
     for peak in peaks[np.argsort(-narrowing[peaks], kind="stable")]:
         if claimed[peak]:
             continue
@@ -230,12 +256,54 @@ def find_lesions(branch: int, arc_mm: np.ndarray, diameter_mm: np.ndarray, refer
             continue  # runs into a deeper lesion above its own edge level: part of that one
         if left == 0 or right == m - 1:
             continue  # open-ended: reaches an end of the analysed profile
-        start = _crossing(arc, narrowing, left, left - 1, level)
-        end = _crossing(arc, narrowing, right, right + 1, level)
+        spans.append((int(left), int(right)))
+    return spans
+
+
+def _edge(arc: np.ndarray, narrowing: np.ndarray, k: int, step: int, level: float, owner: np.ndarray,
+          own: int) -> float | None:
+    """Arc length where ``narrowing`` first falls below ``level`` walking from sample ``k`` by
+    ``step`` (-1 or +1); None where it does not before an end or another lesion's span."""
+    i = k
+    while 0 <= i + step < len(arc) and owner[i + step] in (-1, own):
+        if narrowing[i + step] < level:
+            return _crossing(arc, narrowing, i, i + step, level)
+        i += step
+    return None
+
+
+def find_lesions(branch: int, arc_mm: np.ndarray, diameter_mm: np.ndarray, reference_mm: np.ndarray,
+                 points_mm: np.ndarray, settings: ProfileSettings = ProfileSettings()) -> tuple[Lesion, ...]:
+    """The lesions of an analysed profile (module notes, steps 3 and 4), ordered along the branch:
+    found on the profile smoothed by ``settings.detection_smoothing_mm``, measured on the profile.
+
+    ``arc_mm``, ``diameter_mm``, ``reference_mm`` are (M,), ``points_mm`` (M, 3): the analysed
+    samples only, contiguous.
+    """
+    arc = np.asarray(arc_mm, dtype=np.float64)
+    diameter = np.asarray(diameter_mm, dtype=np.float64)
+    reference = np.asarray(reference_mm, dtype=np.float64)
+    narrowing = _narrowing(diameter, reference)
+    found_on = _narrowing(smoothed_along(arc, diameter, settings.detection_smoothing_mm), reference)
+    spans = _spans(found_on, settings)
+    owner = np.full(len(arc), -1)
+    for n, (left, right) in enumerate(spans):
+        owner[left:right + 1] = n
+    lesions: list[Lesion] = []
+    for n, (left, right) in enumerate(spans):
         inside = np.arange(left, right + 1)
         k = int(inside[np.argmin(diameter[inside])])
         mld, ref = float(diameter[k]), float(reference[k])
         ratio = mld / ref
+        deepest = int(inside[np.argmax(narrowing[inside])])  # the MLD point, but for the taper's slope
+        level = settings.edge_fraction * float(narrowing[deepest])
+        start = _edge(arc, narrowing, deepest, -1, level, owner, n)
+        end = _edge(arc, narrowing, deepest, +1, level, owner, n)
+        smoothed_level = settings.edge_fraction * float(found_on[inside].max())
+        if start is None:
+            start = _crossing(arc, found_on, left, left - 1, smoothed_level)
+        if end is None:
+            end = _crossing(arc, found_on, right, right + 1, smoothed_level)
         lesions.append(Lesion(branch, start, end, float(arc[k]), tuple(float(x) for x in points_mm[k]), mld, ref,
                               100.0 * (1.0 - ratio), 100.0 * (1.0 - ratio * ratio)))
     return tuple(sorted(lesions, key=lambda lesion: lesion.start_mm))
