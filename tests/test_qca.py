@@ -287,6 +287,20 @@ def test_a_dip_of_one_or_two_samples_is_no_lesion_but_a_stenosis_is_found_and_me
     assert found[0].diameter_stenosis_pct == pytest.approx(30.0, abs=0.2)
 
 
+def test_the_profile_keeps_the_smoothed_diameter_its_lesions_were_found_on():
+    # the side branch's first r_parent mm lie in the parent's lumen: not analysed, no smoothed value;
+    # elsewhere the Gaussian average over the analysed samples only (not the junction's)
+    tree = side_branch_tree(0.0, junction_radius=2.2)
+    result = analyse_tree(tree, settings=NO_VIEWS)
+    for branch in result.branches:
+        p = branch.profile
+        a, d, on = p.arc_mm, p.diameter_mm, p.analysed
+        assert np.isnan(p.smoothed_diameter_mm[~on]).all()
+        np.testing.assert_allclose(p.smoothed_diameter_mm[on], smoothed_along(a[on], d[on], 0.5), atol=1e-12)
+    assert (~result.branches[1].profile.analysed).sum() >= 2  # the junction is there
+    assert result.branches[1].profile.smoothed_diameter_mm[~result.branches[1].profile.analysed].size >= 2
+
+
 # -- 3. open-ended narrowings ---------------------------------------------------------------------
 
 def test_narrowing_to_the_tip_is_not_a_lesion():
@@ -756,6 +770,10 @@ def test_result_tables_and_json():
     back = json.loads(text)
     assert back["format"] == "angiohull-qca" and len(back["lesions"]) == 2 and len(back["branches"]) == 3
     assert back["branches"][2]["profile"]["reference_mm"] == [None] * 9
+    assert back["branches"][2]["profile"]["smoothed_diameter_mm"] == [None] * 9
+    trunk = back["branches"][0]["profile"]
+    assert trunk["smoothed_diameter_mm"] == pytest.approx(
+        np.round(smoothed_along(np.array(trunk["arc_mm"]), np.array(trunk["diameter_mm"]), 0.5), 4).tolist(), abs=2e-4)
     assert back["bifurcations"][0]["side_branches"][0]["medina"] == "1,0,1"
     rows = result.lesion_rows()
     assert all(tuple(row) == LESION_COLUMNS for row in rows)

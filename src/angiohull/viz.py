@@ -686,6 +686,9 @@ def _draw_profile(ax: Any, branch: Any) -> None:
     ax.plot(arc, diameter, color="0.75", linewidth=0.8, zorder=1)  # the whole profile, faint
     shown = np.where(analysed, diameter, np.nan)  # the analysed run, in colour
     ax.plot(arc, shown, color=_PROFILE_COLOUR, linewidth=1.1, label="diameter", zorder=3)
+    if p.smoothed_diameter_mm is not None and np.isfinite(p.smoothed_diameter_mm).any():
+        ax.plot(arc, p.smoothed_diameter_mm, color="0.05", linewidth=0.6, alpha=0.8,
+                label="smoothed along the vessel (lesions are found on it)", zorder=4)
     if not analysed.all():
         ax.scatter(arc[~analysed], diameter[~analysed], s=6, color="0.6", linewidths=0, zorder=2,
                    label="not analysed (inside the parent, or a stub)")
@@ -719,8 +722,9 @@ def qca_profiles_figure(result: Any, path: str | os.PathLike[str], *, title: str
     One panel per branch that has a reference diameter and is at least 10 mm long (at most
     :data:`QCA_MAX_PANELS`, the longest, in tree order; the title says how many are left out),
     four to a row: the diameter (mm) against arc length (mm), the points inside the parent's
-    lumen (not analysed) in grey, the reference taper dashed, and each lesion's span shaded, its
-    minimal lumen diameter marked and labelled with %DS, MLD and length.
+    lumen (not analysed) in grey, the diameter smoothed along the vessel that lesions are found on
+    as a thin dark line, the reference taper dashed, and each lesion's span shaded, its minimal lumen diameter
+    marked and labelled with %DS, MLD and length.
 
     Parameters
     ----------

@@ -12,7 +12,8 @@ from ..errors import QcaError
 from ..geometry import Projection
 from ..tree import VesselTree
 from .bifurcations import BifurcationAnalysis, BifurcationSettings, analyse_bifurcations
-from .profile import DiameterProfile, Lesion, ProfileSettings, ReferenceFit, find_lesions, reference_fit
+from .profile import (DiameterProfile, Lesion, ProfileSettings, ReferenceFit, find_lesions, reference_fit,
+                      smoothed_along)
 from .vessels import TreeVessels, Vessel, VesselSettings, tree_vessels
 from .views import ViewMap, ViewMapSettings, view_map, view_report
 
@@ -108,8 +109,8 @@ class QcaResult:
                              "profile": {"arc_mm": np.round(p.arc_mm, 4).tolist(),
                                          "diameter_mm": np.round(p.diameter_mm, 4).tolist(),
                                          "analysed": p.analysed.tolist(),
-                                         "reference_mm": [None if not math.isfinite(x) else round(float(x), 4)
-                                                          for x in p.reference_mm()]}})
+                                         "reference_mm": _rounded_or_none(p.reference_mm()),
+                                         "smoothed_diameter_mm": _rounded_or_none(p.smoothed_diameter_mm)}})
         return _json_safe({
             "format": "angiohull-qca", "version": 1,
             "settings": _settings_dict(self.settings),
@@ -121,6 +122,13 @@ class QcaResult:
             "lesion_views": [vm.to_dict(grid=True) for vm in self.lesion_views],
             "views": list(self.views),
         })
+
+
+def _rounded_or_none(values: np.ndarray | None) -> list[float | None] | None:
+    """A profile array for JSON: 4 decimals, None for nan (no value there)."""
+    if values is None:
+        return None
+    return [None if not math.isfinite(x) else round(float(x), 4) for x in values]
 
 
 def _settings_dict(settings: QcaSettings) -> dict[str, Any]:
@@ -193,10 +201,12 @@ def vessel_profiles(tree: VesselTree, vessel: Vessel, settings: ProfileSettings 
         if strict:
             raise
         reason = str(exc)
+    smoothed = np.full(arc.shape, np.nan)
     if fit is not None:
         lesions = find_lesions(-1, arc[idx], diameter[idx], fit(arc[idx]), vessel.points_mm[idx], settings)
         kept = np.zeros(arc.shape, dtype=bool)
         kept[idx] = fit.kept
+        smoothed[idx] = smoothed_along(arc[idx], diameter[idx], settings.detection_smoothing_mm)
     out = {}
     for k, index in enumerate(vessel.branches):
         b = tree.branches[index]
@@ -204,6 +214,8 @@ def vessel_profiles(tree: VesselTree, vessel: Vessel, settings: ProfileSettings 
         mine = vessel.owner == index
         b_analysed = np.zeros(b.n_points, dtype=bool)
         b_analysed[vessel.point[mine]] = analysed[mine]
+        b_smoothed = np.full(b.n_points, np.nan)
+        b_smoothed[vessel.point[mine]] = smoothed[mine]
         b_fit = None
         b_lesions: list[Lesion] = []
         if fit is not None:
@@ -218,7 +230,7 @@ def vessel_profiles(tree: VesselTree, vessel: Vessel, settings: ProfileSettings 
                                              end_mm=les.end_mm - offset, mld_arc_mm=les.mld_arc_mm - offset))
         out[index] = DiameterProfile(index, b.arc_length_mm, 2.0 * b.radius_mm, b_analysed, b_fit,
                                      tuple(sorted(b_lesions, key=lambda les: les.start_mm)), reason,
-                                     vessel.branches)
+                                     vessel.branches, b_smoothed)
     return out
 
 

@@ -136,6 +136,9 @@ class DiameterProfile:
     lesions: tuple[Lesion, ...]
     reason: str = ""
     vessel: tuple[int, ...] = ()  # the branches read as one vessel with this one, proximal first (:mod:`.vessels`)
+    # (M,) the diameter smoothed along the vessel that lesions are found on (step 3), mm; nan where
+    # not analysed or without a reference; None when not computed
+    smoothed_diameter_mm: np.ndarray | None = None
 
     def reference_mm(self) -> np.ndarray:
         """(M,) reference diameter at every sample (nan without a reference)."""
