@@ -723,8 +723,8 @@ def qca_profiles_figure(result: Any, path: str | os.PathLike[str], *, title: str
     :data:`QCA_MAX_PANELS`, the longest, in tree order; the title says how many are left out),
     four to a row: the diameter (mm) against arc length (mm), the points inside the parent's
     lumen (not analysed) in grey, the diameter smoothed along the vessel that lesions are found on
-    as a thin dark line, the reference taper dashed, and each lesion's span shaded, its minimal lumen diameter
-    marked and labelled with %DS, MLD and length.
+    as a thin dark line, the reference taper dashed, and each lesion's span shaded, its minimal
+    lumen diameter marked and labelled with %DS, MLD and length.
 
     Parameters
     ----------

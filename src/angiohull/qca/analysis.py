@@ -203,10 +203,11 @@ def vessel_profiles(tree: VesselTree, vessel: Vessel, settings: ProfileSettings 
         reason = str(exc)
     smoothed = np.full(arc.shape, np.nan)
     if fit is not None:
-        lesions = find_lesions(-1, arc[idx], diameter[idx], fit(arc[idx]), vessel.points_mm[idx], settings)
+        smoothed[idx] = smoothed_along(arc[idx], diameter[idx], settings.detection_smoothing_mm)
+        lesions = find_lesions(-1, arc[idx], diameter[idx], fit(arc[idx]), vessel.points_mm[idx], settings,
+                               smoothed_mm=smoothed[idx])
         kept = np.zeros(arc.shape, dtype=bool)
         kept[idx] = fit.kept
-        smoothed[idx] = smoothed_along(arc[idx], diameter[idx], settings.detection_smoothing_mm)
     out = {}
     for k, index in enumerate(vessel.branches):
         b = tree.branches[index]

@@ -276,18 +276,22 @@ def _edge(arc: np.ndarray, narrowing: np.ndarray, k: int, step: int, level: floa
 
 
 def find_lesions(branch: int, arc_mm: np.ndarray, diameter_mm: np.ndarray, reference_mm: np.ndarray,
-                 points_mm: np.ndarray, settings: ProfileSettings = ProfileSettings()) -> tuple[Lesion, ...]:
+                 points_mm: np.ndarray, settings: ProfileSettings = ProfileSettings(), *,
+                 smoothed_mm: np.ndarray | None = None) -> tuple[Lesion, ...]:
     """The lesions of an analysed profile (module notes, steps 3 and 4), ordered along the branch:
     found on the profile smoothed by ``settings.detection_smoothing_mm``, measured on the profile.
 
     ``arc_mm``, ``diameter_mm``, ``reference_mm`` are (M,), ``points_mm`` (M, 3): the analysed
-    samples only, contiguous.
+    samples only, contiguous. ``smoothed_mm`` (M,): that smoothed diameter, when the caller has it
+    (:func:`smoothed_along`).
     """
     arc = np.asarray(arc_mm, dtype=np.float64)
     diameter = np.asarray(diameter_mm, dtype=np.float64)
     reference = np.asarray(reference_mm, dtype=np.float64)
+    if smoothed_mm is None:
+        smoothed_mm = smoothed_along(arc, diameter, settings.detection_smoothing_mm)
     narrowing = _narrowing(diameter, reference)
-    found_on = _narrowing(smoothed_along(arc, diameter, settings.detection_smoothing_mm), reference)
+    found_on = _narrowing(np.asarray(smoothed_mm, dtype=np.float64), reference)
     spans = _spans(found_on, settings)
     owner = np.full(len(arc), -1)
     for n, (left, right) in enumerate(spans):
