@@ -508,6 +508,40 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
     return points_mm[keep], info
 
 
+def _unexplained_parts(points_mm: np.ndarray, labels: np.ndarray, big: np.ndarray, projections: Sequence[Projection],
+                       lattice: Lattice, unique_fraction: float) -> np.ndarray:
+    """(N,) bool: the points of the small parts (``~big``) that show vessel pixels the large ones do
+    not explain: the parts that, in some view, have at least ``unique_fraction`` of their points
+    projecting farther from every large part's point than a lattice cell's projection reaches
+    (its half-diagonal plus half a pixel, the axis points' reach). Hull points project inside
+    every mask, so such a part is all that explains those pixels there; a phantom where the cones
+    of other vessels meet projects onto their pixels in every view."""
+    small = np.flatnonzero(~big)
+    parts = int(labels.max()) + 1
+    count = np.bincount(labels[small], minlength=parts)
+    best = np.zeros(parts)
+    for projection in projections:
+        homogeneous = projection.homogeneous(points_mm)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = homogeneous[:, :2] / homogeneous[:, 2:3]
+        px_per_mm = max(projection.focal_lengths_px) / (homogeneous[:, 2] / np.linalg.norm(projection.matrix[2, :3]))
+        reach_px = 0.5 * np.sqrt(3.0) * lattice.spacing_mm * px_per_mm[small] + 0.5
+        bound = float(reach_px.max()) + 1.0
+        # only the large parts' points near the small ones can explain their pixels
+        low, high = _column_min(uv[small]) - bound, _column_max(uv[small]) + bound
+        near = uv[big]
+        near = near[np.all((near >= low) & (near <= high), axis=1)]
+        free = np.ones(len(small), dtype=bool)
+        if len(near):
+            distance, _ = cKDTree(near).query(uv[small], distance_upper_bound=bound)
+            free = distance > reach_px
+        share = np.bincount(labels[small], weights=free.astype(np.float64), minlength=parts) / np.maximum(count, 1)
+        best = np.maximum(best, share)
+    out = np.zeros(len(points_mm), dtype=bool)
+    out[small] = best[labels[small]] >= unique_fraction
+    return out
+
+
 def _lattice_indices(points_mm: np.ndarray, lattice: Lattice) -> np.ndarray:
     """(N, 3) int: the (i, j, k) lattice indices of lattice points."""
     return np.round((points_mm + lattice.half_edge_mm) / lattice.spacing_mm).astype(np.int64)
@@ -719,6 +753,13 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
     point_labels = _point_components(bridged, local)
     sizes = np.bincount(point_labels)
     big = sizes[point_labels] >= settings.component_fraction * len(points_mm)
+    if settings.unique_fraction > 0 and big.any() and not big.all():
+        # a small part that shows, in some view, vessel pixels the large parts do not explain is a
+        # piece of a true vessel cut off by a gap in one view's mask (the distal vessel past a
+        # severe stenosis): it stays, like a piece of its own in the explanation step
+        kept = _unexplained_parts(points_mm, point_labels, big, projections, lattice, settings.unique_fraction)
+        info["components_kept_unexplained"] = int(kept.sum())
+        big |= kept
     info["components_removed"] = int((~big).sum())
     # 3. axis points: hull points whose projection lies on (within a lattice cell of) the 2D
     # centreline in at least axis_views views; each gets the smallest radius the views show there.

@@ -1241,11 +1241,15 @@ class SupportBridge:
     reach. Most gaps are short: a search first reaches a little past the straight gap between the
     part and the tree, then twice as far while no target lies that close, up to the whole reach."""
 
-    def __init__(self, support_mm: np.ndarray, lattice: Lattice, limit_mm: float):
+    def __init__(self, support_mm: np.ndarray, lattice: Lattice, limit_mm: float,
+                 views: tuple[Sequence[Projection], Sequence[np.ndarray]] | None = None):
         self._limit = limit_mm
         self._support, self._lattice = support_mm, lattice
         self._occupied: np.ndarray | None = None
         self._graphs: dict[bool, tuple] = {}
+        # the chord rule (three views or more): the views and, per view, where a point lies near enough its mask
+        self._views = views if views is not None and len(views[0]) >= 3 else None
+        self._near: list[np.ndarray] | None = None
 
     def _graph(self, grown: bool) -> tuple:
         """(index volume, cell centres in mm, sparse graph) of the hull's cells, grown by one or
@@ -1298,7 +1302,44 @@ class SupportBridge:
                     while predecessors[path[-1]] >= 0:
                         path.append(int(predecessors[path[-1]]))
                     return points[path[::-1]]
+        return self._chord(part_mm, tree_mm) if self._views is not None else None
+
+    def _chord(self, part_mm: np.ndarray, tree_mm: np.ndarray) -> np.ndarray | None:
+        """A straight join across a gap the support hull does not cross: the shortest of the chords
+        from a part's point to its nearest tree point (the nearest :data:`_CHORD_CANDIDATES`
+        parts' points first), at most the reach long, every point of which (every
+        :data:`_CHORD_STEP_MM`) projects near the mask of every view but one: within a lattice
+        cell's projection (its half-diagonal plus half a pixel, the refined preset's axis reach)
+        of a vessel pixel. A vessel that one view's mask breaks (a severe stenosis, a faint
+        stretch) leaves no hull across the break, while the others still show it; a chord to
+        another vessel crosses background in two views or more."""
+        projections, masks = self._views
+        if self._near is None:
+            self._near = [ndi.distance_transform_edt(~(np.asarray(m) > 0.5)) for m in masks]
+        distance, nearest = cKDTree(tree_mm).query(part_mm, distance_upper_bound=self._limit)
+        order = np.argsort(distance, kind="stable")[:_CHORD_CANDIDATES]
+        for i in order[np.isfinite(distance[order])]:
+            start, end = part_mm[i], tree_mm[nearest[i]]
+            steps = max(int(np.ceil(float(distance[i]) / _CHORD_STEP_MM)), 2)
+            chord = start + np.linspace(0.0, 1.0, steps + 1)[:, None] * (end - start)
+            views_near = np.zeros(len(chord), dtype=np.int64)
+            for projection, near in zip(projections, self._near):
+                homogeneous = projection.homogeneous(chord)
+                uv = homogeneous[:, :2] / homogeneous[:, 2:3]
+                px_per_mm = max(projection.focal_lengths_px) / (homogeneous[:, 2] / np.linalg.norm(projection.matrix[2, :3]))
+                reach_px = 0.5 * np.sqrt(3.0) * self._lattice.spacing_mm * px_per_mm + 0.5
+                cols, rows = np.floor(uv[:, 0] + 0.5).astype(np.int64), np.floor(uv[:, 1] + 0.5).astype(np.int64)
+                inside = (rows >= 0) & (rows < near.shape[0]) & (cols >= 0) & (cols < near.shape[1])
+                gap_px = np.full(len(chord), np.inf)
+                gap_px[inside] = near[rows[inside], cols[inside]]
+                views_near += gap_px <= reach_px
+            if np.all(views_near >= len(projections) - 1):
+                return chord
         return None
+
+
+_CHORD_CANDIDATES = 40  # SupportBridge._chord tries the chords of this many of a part's points, the shortest first
+_CHORD_STEP_MM = 0.1  # ... each checked every this much
 
 
 def _widening_limits(first: float, last: float) -> list[float]:
@@ -1374,7 +1415,8 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     images = [np.asarray(m, dtype=np.float32) for m in masks]
     bridge = support_bridge
     if bridge is None and support_points_mm is not None and len(support_points_mm):
-        bridge = SupportBridge(np.asarray(support_points_mm, dtype=np.float64), lattice, settings.max_bridge_mm)
+        bridge = SupportBridge(np.asarray(support_points_mm, dtype=np.float64), lattice, settings.max_bridge_mm,
+                               views=(projections, masks))
 
     try:
         raw, skeleton_info = tree_from_skeleton(skeleton, radius_volume, origin_mm=origin,

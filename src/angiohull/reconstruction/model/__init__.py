@@ -727,7 +727,8 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     start = time.perf_counter()
     bridge = None  # the support hull's graphs, built once for every rebuild
     if support_points_mm is not None and len(support_points_mm):
-        bridge = SupportBridge(np.asarray(support_points_mm, dtype=np.float64), lattice, settings.tree.max_bridge_mm)
+        bridge = SupportBridge(np.asarray(support_points_mm, dtype=np.float64), lattice, settings.tree.max_bridge_mm,
+                               views=(projections, masks))
 
     def fitted_and_pruned(volume: np.ndarray) -> tuple[VesselTree, TreeBuild, int, int, int]:
         tree_settings = settings.tree
