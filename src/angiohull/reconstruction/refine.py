@@ -509,18 +509,22 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
 
 
 def _unexplained_parts(points_mm: np.ndarray, labels: np.ndarray, big: np.ndarray, projections: Sequence[Projection],
-                       lattice: Lattice, unique_fraction: float) -> np.ndarray:
-    """(N,) bool: the points of the small parts (``~big``) that show vessel pixels the large ones do
-    not explain: the parts that, in some view, have at least ``unique_fraction`` of their points
+                       masks: Sequence[np.ndarray], lattice: Lattice, unique_fraction: float) -> np.ndarray:
+    """(N,) bool: the points of the small parts (``~big``) that carry on a vessel of the large ones
+    in some view: the parts that, in some view, have at least ``unique_fraction`` of their points
     projecting farther from every large part's point than a lattice cell's projection reaches
-    (its half-diagonal plus half a pixel, the axis points' reach). Hull points project inside
-    every mask, so such a part is all that explains those pixels there; a phantom where the cones
-    of other vessels meet projects onto their pixels in every view."""
+    (its half-diagonal plus half a pixel, the axis points' reach) onto the connected piece of the
+    mask that the large parts' points project onto. Hull points project inside every mask, so such
+    a part is all that explains those pixels, where the view shows them joined to the tree (the
+    view that breaks the vessel is another one); a phantom where the cones of other vessels meet
+    projects onto their pixels in every view, and a speck carved from false-positive pixels onto
+    blobs apart from the tree."""
     small = np.flatnonzero(~big)
     parts = int(labels.max()) + 1
     count = np.bincount(labels[small], minlength=parts)
     best = np.zeros(parts)
-    for projection in projections:
+    for projection, mask in zip(projections, masks):
+        mask = np.asarray(mask, dtype=bool)
         homogeneous = projection.homogeneous(points_mm)
         with np.errstate(divide="ignore", invalid="ignore"):
             uv = homogeneous[:, :2] / homogeneous[:, 2:3]
@@ -535,6 +539,13 @@ def _unexplained_parts(points_mm: np.ndarray, labels: np.ndarray, big: np.ndarra
         if len(near):
             distance, _ = cKDTree(near).query(uv[small], distance_upper_bound=bound)
             free = distance > reach_px
+        pieces, _ = ndi.label(mask, structure=_EIGHT)
+        cols = np.clip(np.floor(uv[:, 0] + 0.5).astype(np.int64), 0, mask.shape[1] - 1)
+        rows = np.clip(np.floor(uv[:, 1] + 0.5).astype(np.int64), 0, mask.shape[0] - 1)
+        on_tree = np.zeros(int(pieces.max()) + 1, dtype=bool)
+        on_tree[pieces[rows[big], cols[big]]] = True
+        on_tree[0] = False
+        free &= on_tree[pieces[rows[small], cols[small]]]
         share = np.bincount(labels[small], weights=free.astype(np.float64), minlength=parts) / np.maximum(count, 1)
         best = np.maximum(best, share)
     out = np.zeros(len(points_mm), dtype=bool)
@@ -754,10 +765,11 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
     sizes = np.bincount(point_labels)
     big = sizes[point_labels] >= settings.component_fraction * len(points_mm)
     if settings.unique_fraction > 0 and big.any() and not big.all():
-        # a small part that shows, in some view, vessel pixels the large parts do not explain is a
-        # piece of a true vessel cut off by a gap in one view's mask (the distal vessel past a
-        # severe stenosis): it stays, like a piece of its own in the explanation step
-        kept = _unexplained_parts(points_mm, point_labels, big, projections, lattice, settings.unique_fraction)
+        # a small part that shows, in some view, pixels of the tree's own mask piece that the large
+        # parts do not explain is a piece of a true vessel cut off by a gap in another view's mask
+        # (the distal vessel past a severe stenosis): it stays, like a piece of its own in the
+        # explanation step
+        kept = _unexplained_parts(points_mm, point_labels, big, projections, masks, lattice, settings.unique_fraction)
         info["components_kept_unexplained"] = int(kept.sum())
         big |= kept
     info["components_removed"] = int((~big).sum())
