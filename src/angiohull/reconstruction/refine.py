@@ -485,7 +485,7 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
     info : dict
         Counts removed by each step (``pieces_removed``: axis pieces dropped by the explanation step).
     """
-    info = {"components_removed": 0, "pieces_removed": 0, "radius_removed": 0}
+    info = {"components_removed": 0, "components_kept_unexplained": 0, "pieces_removed": 0, "radius_removed": 0}
     if len(points_mm) == 0:
         return points_mm, info
     # in lattice order, so that ties between equally near points do not depend on the input's order
