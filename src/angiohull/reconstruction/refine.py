@@ -13,7 +13,14 @@ steps that stay interpretable:
    to two missing lattice points are bridged) holding less than ``component_fraction`` of its
    points are dropped. A lattice cell projects to about 2 px at K = 256, more than the 1 px
    threshold, so a thin vessel, or one whose mask lost pixels, is sampled with gaps; without the
-   bridge such a stretch counts as a separate part.
+   bridge such a stretch counts as a separate part. A small part stays when, in some view, at
+   least ``unique_fraction`` of its points project beyond a lattice cell's reach of every large
+   part's point, onto the connected piece of the mask that the large parts project onto
+   (:func:`_unexplained_parts`): a vessel that one view's mask breaks for a few millimetres (a
+   severe stenosis, a faint stretch) leaves its part beyond the break apart in the hull, while the
+   other views show it on the tree's own mask piece, where nothing else explains it (the
+   explanation step's rule for pieces); a phantom projects onto other vessels' pixels in every
+   view, and a speck carved from false-positive pixels onto blobs apart from the tree.
 3. **Radius consistency**: *axis points* are the hull points whose projection lies on the 2D
    centreline (Guo–Hall thinning of the mask), within the projection of a lattice cell, in at
    least ``axis_views`` views (3; every view when there are fewer): they stand for the vessels' 3D

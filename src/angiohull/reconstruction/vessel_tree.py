@@ -11,7 +11,9 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    (:func:`angiohull.tree.teasar.teasar_skeleton`; 3D thinning can lose whole limbs) make the
    skeleton, and :func:`angiohull.tree.skeleton.tree_from_skeleton` the graph: cycles cut, small
    gaps joined (larger ones along the shortest path through ``support_points_mm``, the carving
-   before refinement, where the refined preset dropped a true piece), spurs no longer than two
+   before refinement, where the refined preset dropped a true piece; with three views or more,
+   where it holds none, by a straight chord that every view but one shows: :class:`SupportBridge`),
+   spurs no longer than two
    local radii removed, the root at the widest tip, branches continued through junctions. Its
    radii (the distance to the nearest empty cell of the undilated volume) only start the fit: the
    hull is wider than the vessel, and the lattice coarse.
@@ -1236,7 +1238,8 @@ def _occupancy(points_mm: np.ndarray, lattice: Lattice, cell_mm: float) -> tuple
 class SupportBridge:
     """Shortest paths through a support hull, for :func:`~angiohull.tree.skeleton.tree_from_skeleton`:
     through its cells, or, where they hold no path (the carving, too, has gaps of a cell or two in
-    thin vessels), through its cells grown by one. The graph of the whole hull is built once (and
+    thin vessels), through its cells grown by one; where neither does and ``views`` (projections,
+    masks) holds three views or more, the straight chord of :meth:`_chord`. The graph of the whole hull is built once (and
     that of the grown hull when first needed) and serves every part; each search stops at its
     reach. Most gaps are short: a search first reaches a little past the straight gap between the
     part and the tree, then twice as far while no target lies that close, up to the whole reach."""
