@@ -331,3 +331,32 @@ def test_a_support_bridge_chord_lies_in_every_mask_but_one_within_a_cell():
     # broken in two views: no chord
     _, projections2, masks2, _ = _broken_side_branch(gap_views=(0, 1))
     assert SupportBridge(points, lattice, 80.0, views=(projections2, masks2))(part, tree) is None
+
+
+def test_a_small_part_counts_as_explained_by_another_small_part_not_only_by_the_large_ones():
+    # Hand-made: a large part B, a small part S (a vessel's piece beyond a break) and a small part Q
+    # lying, in view 0, on S's viewing rays 8 mm deeper (a phantom where S's cone meets others'),
+    # and in views 1 and 2 on rays that points of B also lie on. Every mask is one piece. Q is
+    # explained in every view (by S in view 0, by B in the others) and goes; S is explained by Q in
+    # view 0 only, and free in views 1 and 2, and stays. Counting only the large part as explaining,
+    # Q would be free in view 0 and stay.
+    from angiohull.geometry import parse_clinical_angles
+    from angiohull.reconstruction.cube import Lattice
+    from angiohull.reconstruction.refine import _unexplained_parts
+
+    projections = [CArmGeometry(*parse_clinical_angles(v), 1200.0, 800.0, (0.35, 0.35), (512, 512)).projection()
+                   for v in ("RAO 30 CRA 30", "LAO 60 CRA 30", "RAO 30 CAU 30")]
+    masks = [np.ones((512, 512), dtype=bool) for _ in projections]
+    s_part = np.outer(np.linspace(0.0, 10.0, 21), [0.6, 0.8, 0.0]) + np.array([5.0, 5.0, 0.0])
+    centre0 = projections[0].camera_centre_mm
+    deeper = s_part + 8.0 * (s_part - centre0) / np.linalg.norm(s_part - centre0, axis=1)[:, None]
+    b_points = [np.outer(np.linspace(-30.0, 30.0, 121), [1.0, 0.0, 0.0]) + np.array([0.0, -25.0, 10.0])]
+    for view in (1, 2):  # for each point of Q, a point of B on its viewing ray in views 1 and 2, 15 mm nearer
+        centre = projections[view].camera_centre_mm
+        b_points.append(deeper - 15.0 * (deeper - centre) / np.linalg.norm(deeper - centre, axis=1)[:, None])
+    points = np.vstack([*b_points, s_part, deeper])
+    labels = np.concatenate([np.zeros(sum(len(b) for b in b_points), dtype=int), np.full(len(s_part), 1),
+                             np.full(len(deeper), 2)])
+    big = labels == 0
+    kept = _unexplained_parts(points, labels, big, projections, masks, Lattice(60.0, 256), 0.5)
+    assert kept[labels == 1].all() and not kept[labels == 2].any()
