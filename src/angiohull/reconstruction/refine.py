@@ -14,7 +14,7 @@ steps that stay interpretable:
    points are dropped. A lattice cell projects to about 2 px at K = 256, more than the 1 px
    threshold, so a thin vessel, or one whose mask lost pixels, is sampled with gaps; without the
    bridge such a stretch counts as a separate part. A small part stays when, in some view, at
-   least ``unique_fraction`` of its points project beyond a lattice cell's reach of every large
+   least ``unique_fraction`` of its points project beyond a lattice cell's reach of every other
    part's point, onto the connected piece of the mask that the large parts project onto
    (:func:`_unexplained_parts`): a vessel that one view's mask breaks for a few millimetres (a
    severe stenosis, a faint stretch) leaves its part beyond the break apart in the hull, while the
@@ -521,14 +521,14 @@ def _unexplained_parts(points_mm: np.ndarray, labels: np.ndarray, big: np.ndarra
     in some view: the parts that, in some view, have at least ``unique_fraction`` of their points
     projecting farther from every other part's point (large, or small and another) than a lattice
     cell's projection reaches (its half-diagonal plus half a pixel, the axis points' reach) onto
-    the connected piece of the mask that the large parts' points project onto. Hull points project inside every mask, so such
-    a part is all that explains those pixels, where the view shows them joined to the tree (the
-    view that breaks the vessel is another one); a phantom where the cones of other vessels meet
-    projects onto their pixels in every view, and a speck carved from false-positive pixels onto
-    blobs apart from the tree. Another small part counts as explaining too: the part beyond a break
-    is small itself, and the phantoms where its cone meets other vessels' (7-11 mm from any vessel
-    on a QCA benchmark tree, left 14) project onto its pixels in one view and onto the large parts'
-    in the others."""
+    the connected piece of the mask that the large parts' points project onto. Hull points project
+    inside every mask, so such a part is all that explains those pixels, where the view shows them
+    joined to the tree (the view that breaks the vessel is another one); a phantom where the cones
+    of other vessels meet projects onto their pixels in every view, and a speck carved from
+    false-positive pixels onto blobs apart from the tree. Another small part counts as explaining
+    too: the part beyond a break is small itself, and the phantoms where its cone meets other
+    vessels' (4-12 mm from any vessel on a QCA benchmark tree, left 14) project onto its pixels in
+    one view and onto the large parts' in the others."""
     small = np.flatnonzero(~big)
     parts = int(labels.max()) + 1
     count = np.bincount(labels[small], minlength=parts)

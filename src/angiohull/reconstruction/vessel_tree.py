@@ -1239,9 +1239,9 @@ class SupportBridge:
     """Shortest paths through a support hull, for :func:`~angiohull.tree.skeleton.tree_from_skeleton`:
     through its cells, or, where they hold no path (the carving, too, has gaps of a cell or two in
     thin vessels), through its cells grown by one; where neither does and ``views`` (projections,
-    masks) holds three views or more, the straight chord of :meth:`_chord`. The graph of the whole hull is built once (and
-    that of the grown hull when first needed) and serves every part; each search stops at its
-    reach. Most gaps are short: a search first reaches a little past the straight gap between the
+    masks) holds three views or more, the straight chord of :meth:`_chord`. The graph of the whole
+    hull is built once (and that of the grown hull when first needed) and serves every part; each
+    search stops at its reach. Most gaps are short: a search first reaches a little past the straight gap between the
     part and the tree, then twice as far while no target lies that close, up to the whole reach."""
 
     def __init__(self, support_mm: np.ndarray, lattice: Lattice, limit_mm: float,
@@ -1309,8 +1309,8 @@ class SupportBridge:
 
     def _chord(self, part_mm: np.ndarray, tree_mm: np.ndarray) -> np.ndarray | None:
         """A straight join across a gap the support hull does not cross: the shortest of the chords
-        from a part's point to its nearest tree point (the nearest :data:`_CHORD_CANDIDATES`
-        parts' points first), at most the reach long, every point of which (every
+        from a part's point to its nearest tree point (of the part's :data:`_CHORD_CANDIDATES`
+        points nearest the tree), at most the reach long, every point of which (every
         :data:`_CHORD_STEP_MM`) projects near the mask of every view but one: within a lattice
         cell's projection (its half-diagonal plus half a pixel, the refined preset's axis reach)
         of a vessel pixel. A vessel that one view's mask breaks (a severe stenosis, a faint
