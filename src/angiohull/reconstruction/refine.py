@@ -515,6 +515,23 @@ def refine_hull(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[P
     return points_mm[keep], info
 
 
+def projected_with_scale(projection: Projection, points_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(uv, px_per_mm)``: the points' projections (px) and the view's magnification at each (px
+    per mm at its depth), from one product (:meth:`Projection.project` and ``.depth_mm`` in one)."""
+    homogeneous = projection.homogeneous(points_mm)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = homogeneous[:, :2] / homogeneous[:, 2:3]
+    px_per_mm = max(projection.focal_lengths_px) / (homogeneous[:, 2] / np.linalg.norm(projection.matrix[2, :3]))
+    return uv, px_per_mm
+
+
+def cell_reach_px(spacing_mm: float, px_per_mm: np.ndarray) -> np.ndarray:
+    """How far (px) a lattice cell's projection reaches from its point: its half-diagonal at the
+    point's magnification plus half a pixel (the reach within which a point counts as on a 2D
+    centreline, explained by another point, or near a mask)."""
+    return 0.5 * np.sqrt(3.0) * spacing_mm * px_per_mm + 0.5
+
+
 def _unexplained_parts(points_mm: np.ndarray, labels: np.ndarray, big: np.ndarray, projections: Sequence[Projection],
                        masks: Sequence[np.ndarray], lattice: Lattice, unique_fraction: float) -> np.ndarray:
     """(N,) bool: the points of the small parts (``~big``) that carry on a vessel of the large ones
@@ -535,11 +552,8 @@ def _unexplained_parts(points_mm: np.ndarray, labels: np.ndarray, big: np.ndarra
     best = np.zeros(parts)
     for projection, mask in zip(projections, masks):
         mask = np.asarray(mask, dtype=bool)
-        homogeneous = projection.homogeneous(points_mm)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            uv = homogeneous[:, :2] / homogeneous[:, 2:3]
-        px_per_mm = max(projection.focal_lengths_px) / (homogeneous[:, 2] / np.linalg.norm(projection.matrix[2, :3]))
-        reach_px = 0.5 * np.sqrt(3.0) * lattice.spacing_mm * px_per_mm[small] + 0.5
+        uv, px_per_mm = projected_with_scale(projection, points_mm)
+        reach_px = cell_reach_px(lattice.spacing_mm, px_per_mm[small])
         bound = float(reach_px.max()) + 1.0
         # only the large parts' points near the small ones can explain their pixels
         low, high = _column_min(uv[small]) - bound, _column_max(uv[small]) + bound
@@ -802,11 +816,7 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
         # distance transforms do not depend on how the image was stored (flipped, transposed)
         storage = canonical_storage(projection)
         projection, mask = storage.apply(projection), storage.apply_image(np.asarray(mask, dtype=bool))
-        # Projection.project and .depth_mm from one product
-        homogeneous = projection.homogeneous(candidates)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            uv = homogeneous[:, :2] / homogeneous[:, 2:3]
-        px_per_mm = max(projection.focal_lengths_px) / (homogeneous[:, 2] / np.linalg.norm(projection.matrix[2, :3]))
+        uv, px_per_mm = projected_with_scale(projection, candidates)
         cols = np.clip(np.floor(uv[:, 0] + 0.5).astype(np.int64), 0, mask.shape[1] - 1)
         rows = np.clip(np.floor(uv[:, 1] + 0.5).astype(np.int64), 0, mask.shape[0] - 1)
         # the image maps below are computed on the box around the mask and the candidates' pixels,
@@ -819,7 +829,7 @@ def _axis_points(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[
         centreline = thin(crop)
         inside = _inside_distance(crop, centreline)
         off_centre, nearest = ndi.distance_transform_edt(~centreline, return_indices=True)
-        reach_px = 0.5 * np.sqrt(3.0) * h * px_per_mm + 0.5
+        reach_px = cell_reach_px(h, px_per_mm)
         on_axis_views += off_centre[local_rows, local_cols] <= reach_px
         # half-width at the nearest centreline pixel; the distance to the nearest background pixel
         # centre overshoots the edge (half-way between pixel centres) by 0.5 px

@@ -245,6 +245,7 @@ from ..tree.skeleton import SkeletonInfo, SkeletonSettings, rerooted, tree_from_
 from ..tree.teasar import teasar_skeleton
 from ..tree.voxels import coordinates, dilated, distance_to, neighbour_edges
 from .cube import Lattice
+from .refine import cell_reach_px, projected_with_scale
 
 __all__ = ["TreeSettings", "TREE_SETTINGS", "TreeBuild", "SupportBridge", "hull_tree", "refit_tree"]
 
@@ -1327,10 +1328,8 @@ class SupportBridge:
             chord = start + np.linspace(0.0, 1.0, steps + 1)[:, None] * (end - start)
             views_near = np.zeros(len(chord), dtype=np.int64)
             for projection, near in zip(projections, self._near):
-                homogeneous = projection.homogeneous(chord)
-                uv = homogeneous[:, :2] / homogeneous[:, 2:3]
-                px_per_mm = max(projection.focal_lengths_px) / (homogeneous[:, 2] / np.linalg.norm(projection.matrix[2, :3]))
-                reach_px = 0.5 * np.sqrt(3.0) * self._lattice.spacing_mm * px_per_mm + 0.5
+                uv, px_per_mm = projected_with_scale(projection, chord)
+                reach_px = cell_reach_px(self._lattice.spacing_mm, px_per_mm)
                 cols, rows = np.floor(uv[:, 0] + 0.5).astype(np.int64), np.floor(uv[:, 1] + 0.5).astype(np.int64)
                 inside = (rows >= 0) & (rows < near.shape[0]) & (cols >= 0) & (cols < near.shape[1])
                 gap_px = np.full(len(chord), np.inf)
