@@ -8,6 +8,9 @@ bifurcation angles, foreshortening, overlap and working views.
 * :mod:`.bifurcations`: proximal and distal angles, Medina flags;
 * :mod:`.views`: foreshortening and overlap in a view, the view map of a segment and its best
   C-arm angles;
+* :mod:`.attenuation`: lumen diameters read from the angiograms' attenuation (a blurred round
+  lumen fitted across the vessel in each view): a lesion's minimal lumen diameter where a mask's
+  threshold cannot give it (``analyse_tree(..., attenuation=)``);
 * :mod:`.analysis`: :func:`analyse_tree`, everything at once, with its tables.
 
 Works on any :class:`~angiohull.tree.VesselTree` (a reconstruction's or a true one); arrays in,
@@ -18,6 +21,8 @@ from __future__ import annotations
 
 from .analysis import (BRANCH_COLUMNS, LESION_COLUMNS, BranchQca, QcaResult, QcaSettings, analyse_tree,
                        branch_profile, segment_view_map, vessel_profiles)
+from .attenuation import (AttenuationFitSettings, AttenuationMeasurement, ViewCalibration, calibrate_views,
+                          image_diameters)
 from .bifurcations import BifurcationAnalysis, BifurcationSettings, analyse_bifurcations
 from .profile import DiameterProfile, Lesion, ProfileSettings, ReferenceFit, reference_fit, window_lesion_length_mm
 from .vessels import TreeVessels, Vessel, VesselSettings, tree_vessels
@@ -30,4 +35,5 @@ __all__ = [
     "VesselSettings", "Vessel", "TreeVessels", "tree_vessels",
     "BifurcationSettings", "BifurcationAnalysis", "analyse_bifurcations",
     "ViewMapSettings", "ViewMap", "view_map", "foreshortening",
+    "AttenuationFitSettings", "ViewCalibration", "AttenuationMeasurement", "calibrate_views", "image_diameters",
 ]

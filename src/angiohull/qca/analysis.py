@@ -11,6 +11,7 @@ import numpy as np
 from ..errors import QcaError
 from ..geometry import Projection
 from ..tree import VesselTree
+from .attenuation import AttenuationFitSettings, ViewCalibration
 from .bifurcations import BifurcationAnalysis, BifurcationSettings, analyse_bifurcations
 from .profile import (DiameterProfile, Lesion, ProfileSettings, ReferenceFit, find_lesions, reference_fit,
                       smoothed_along)
@@ -22,7 +23,7 @@ __all__ = ["QcaSettings", "BranchQca", "QcaResult", "analyse_tree", "branch_prof
 
 LESION_COLUMNS = ("lesion", "branch", "branch_name", "x_mm", "y_mm", "z_mm", "mld_mm", "reference_diameter_mm",
                   "diameter_stenosis_pct", "area_stenosis_pct", "lesion_length_mm", "start_mm", "end_mm",
-                  "mld_arc_mm", "best_view", "best_view_foreshortening", "best_view_overlap")
+                  "mld_arc_mm", "best_view", "best_view_foreshortening", "best_view_overlap", "mld_source")
 BRANCH_COLUMNS = ("branch", "name", "parent", "parent_point", "length_mm", "mean_diameter_mm", "min_diameter_mm",
                   "max_diameter_mm", "reference_start_mm", "reference_end_mm", "lesions",
                   "max_diameter_stenosis_pct", "tortuosity_curvature_rad_per_cm", "tortuosity_soam_rad_per_cm",
@@ -39,6 +40,7 @@ class QcaSettings:
     view_map: ViewMapSettings = field(default_factory=ViewMapSettings)
     lesion_view_margin_mm: float = 5.0  # a lesion's working view covers it and this much either side
     lesion_views: bool = True  # compute a view map for every lesion
+    attenuation: AttenuationFitSettings = field(default_factory=AttenuationFitSettings)  # MLD from the angiograms
 
 
 @dataclass(frozen=True)
@@ -81,6 +83,7 @@ class QcaResult:
     bifurcations: tuple[BifurcationAnalysis, ...]
     lesion_views: tuple[ViewMap, ...]  # one per lesion (empty when settings.lesion_views is False)
     views: tuple[dict, ...]  # per acquired view: foreshortening and overlap per branch
+    calibrations: tuple[ViewCalibration, ...] = ()  # per view, when lesions were measured on the angiograms
 
     def lesion_rows(self) -> list[dict[str, Any]]:
         rows = []
@@ -94,7 +97,7 @@ class QcaResult:
                          "area_stenosis_pct": les.area_stenosis_pct, "lesion_length_mm": les.length_mm,
                          "start_mm": les.start_mm, "end_mm": les.end_mm, "mld_arc_mm": les.mld_arc_mm,
                          "best_view": best.get("best_view"), "best_view_foreshortening": best.get("best_foreshortening"),
-                         "best_view_overlap": best.get("best_overlap")})
+                         "best_view_overlap": best.get("best_overlap"), "mld_source": les.mld_source})
         return rows
 
     def branch_rows(self) -> list[dict[str, Any]]:
@@ -121,6 +124,7 @@ class QcaResult:
             "bifurcations": [b.to_dict() for b in self.bifurcations],
             "lesion_views": [vm.to_dict(grid=True) for vm in self.lesion_views],
             "views": list(self.views),
+            "attenuation_calibrations": [c.to_dict() for c in self.calibrations],
         })
 
 
@@ -265,7 +269,7 @@ def _tortuosity(points: np.ndarray) -> dict[str, float]:
 
 
 def analyse_tree(tree: VesselTree, projections: Sequence[Projection] = (), view_names: Sequence[str] | None = None,
-                 settings: QcaSettings = QcaSettings()) -> QcaResult:
+                 settings: QcaSettings = QcaSettings(), attenuation: Sequence[np.ndarray] | None = None) -> QcaResult:
     """Quantitative coronary analysis of a vessel tree.
 
     Parameters
@@ -276,6 +280,12 @@ def analyse_tree(tree: VesselTree, projections: Sequence[Projection] = (), view_
         The acquired views: each branch's foreshortening and overlap in each (``views``).
     view_names : sequence of str, optional
     settings : QcaSettings
+    attenuation : sequence of (rows, cols) arrays, optional
+        One flattened attenuation image per projection (the angiogram's ``log(background /
+        image)``, for example :attr:`angiohull.segmentation.SegmentationResult.attenuation`): each
+        lesion's minimal lumen diameter is then measured again on them (:mod:`.attenuation`;
+        ``Lesion.mld_source`` says where it was), which a threshold's mask cannot give for
+        lumens a few pixels wide. Needs ``projections``.
 
     Returns
     -------
@@ -288,9 +298,14 @@ def analyse_tree(tree: VesselTree, projections: Sequence[Projection] = (), view_
     Raises
     ------
     QcaError
-        If ``tree`` is None, not a VesselTree, or has no branch long enough for a reference fit.
+        If ``tree`` is None, not a VesselTree, or has no branch long enough for a reference fit;
+        if ``attenuation`` is given without one image per projection, or an image's shape is not
+        its projection's.
     """
     tree = _check_tree(tree)
+    if attenuation is not None and len(attenuation) != len(projections):
+        raise QcaError(f"attenuation needs one image per projection: {len(attenuation)} images for "
+                       f"{len(projections)} projections")
     vessels = tree_vessels(tree, settings.vessels)
     profiles: dict[int, DiameterProfile] = {}
     for vessel in vessels.vessels:
@@ -306,6 +321,9 @@ def analyse_tree(tree: VesselTree, projections: Sequence[Projection] = (), view_
         raise QcaError(f"no branch of the tree is long enough for a reference diameter fit (the longest, branch "
                        f"{longest.index}, is {longest.length_mm:.1f} mm; the fit needs "
                        f"{settings.profile.min_reference_length_mm:g} mm)")
+    calibrations: tuple[ViewCalibration, ...] = ()
+    if attenuation is not None and any(b.profile.lesions for b in branches):
+        branches, calibrations = _lesions_on_images(tree, branches, projections, attenuation, settings.attenuation)
     lesions = tuple(les for b in branches for les in b.profile.lesions)
     bifurcations = analyse_bifurcations(tree, lesions, settings.bifurcation, vessels=vessels)
     maps = []
@@ -316,7 +334,46 @@ def analyse_tree(tree: VesselTree, projections: Sequence[Projection] = (), view_
             hi = min(length, les.end_mm + settings.lesion_view_margin_mm)
             maps.append(view_map(tree, les.branch, lo, hi, settings.view_map))
     views = tuple(view_report(tree, projections, view_names, near_mm=settings.view_map.near_mm)) if projections else ()
-    return QcaResult(tree, settings, tuple(branches), lesions, bifurcations, tuple(maps), views)
+    return QcaResult(tree, settings, tuple(branches), lesions, bifurcations, tuple(maps), views, calibrations)
+
+
+def _lesions_on_images(tree: VesselTree, branches: list[BranchQca], projections: Sequence[Projection],
+                       attenuation: Sequence[np.ndarray], settings: AttenuationFitSettings
+                       ) -> tuple[list[BranchQca], tuple[ViewCalibration, ...]]:
+    """Every lesion's MLD measured again on the angiograms (:mod:`.attenuation`, step 3): the least
+    image diameter of its branch's points within its span."""
+    from .attenuation import calibrate_views, image_diameters
+
+    every = [les for b in branches for les in b.profile.lesions]
+    calibrations = tuple(calibrate_views(tree, projections, attenuation, np.array([les.mld_point_mm for les in every]),
+                                         settings))
+    offsets = np.concatenate([[0], np.cumsum([b.n_points for b in tree.branches])])
+    out = []
+    for bq in branches:
+        if not bq.profile.lesions:
+            out.append(bq)
+            continue
+        branch = tree.branches[bq.index]
+        arc = branch.arc_length_mm
+        measured = []
+        for les in bq.profile.lesions:
+            near = np.flatnonzero((arc >= les.start_mm - 1e-9) & (arc <= les.end_mm + 1e-9))
+            if near.size == 0:
+                near = np.array([int(np.argmin(np.abs(arc - les.mld_arc_mm)))])
+            m = image_diameters(tree, offsets[bq.index] + near, projections, attenuation, calibrations,
+                                np.full(near.size, 0.5 * les.reference_diameter_mm), settings)
+            if not np.isfinite(m.diameter_mm).any():
+                measured.append(les)
+                continue
+            k = int(np.nanargmin(m.diameter_mm))
+            mld = float(m.diameter_mm[k])
+            ratio = mld / les.reference_diameter_mm
+            measured.append(replace(les, mld_arc_mm=float(arc[near[k]]),
+                                    mld_point_mm=tuple(float(x) for x in branch.points_mm[near[k]]), mld_mm=mld,
+                                    diameter_stenosis_pct=100.0 * (1.0 - ratio),
+                                    area_stenosis_pct=100.0 * (1.0 - ratio * ratio), mld_source="images"))
+        out.append(replace(bq, profile=replace(bq.profile, lesions=tuple(measured))))
+    return out, calibrations
 
 
 def _mean_along(values: np.ndarray, arc: np.ndarray) -> float:

@@ -111,6 +111,7 @@ class Lesion:
     reference_diameter_mm: float  # ref at the MLD point
     diameter_stenosis_pct: float
     area_stenosis_pct: float
+    mld_source: str = "tree"  # "tree": the profile's own MLD; "images": measured again on the angiograms (:mod:`.attenuation`)
 
     @property
     def length_mm(self) -> float:
@@ -121,7 +122,8 @@ class Lesion:
                 "lesion_length_mm": self.length_mm, "mld_arc_mm": self.mld_arc_mm,
                 "mld_point_mm": list(self.mld_point_mm), "mld_mm": self.mld_mm,
                 "reference_diameter_mm": self.reference_diameter_mm,
-                "diameter_stenosis_pct": self.diameter_stenosis_pct, "area_stenosis_pct": self.area_stenosis_pct}
+                "diameter_stenosis_pct": self.diameter_stenosis_pct, "area_stenosis_pct": self.area_stenosis_pct,
+                "mld_source": self.mld_source}
 
 
 @dataclass(frozen=True)
