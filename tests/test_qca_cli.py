@@ -346,3 +346,66 @@ def test_qca_replaces_its_own_earlier_analysis_and_nothing_else(case, tmp_path, 
     assert "not empty" in capsys.readouterr().err and (own / "notes.txt").is_file()
     assert main(["qca", str(result), "-o", str(result), "--overwrite", "--no-views", "--no-figures", "-q"]) == 2
     assert "an input of this command" in capsys.readouterr().err and (result / "tree.json").is_file()
+
+
+# -- lesions measured on the angiograms (image: views) ------------------------------------------------
+@pytest.fixture(scope="module")
+def angiogram_case(case):
+    """The demo's tree rendered as angiograms (seeded; angiohull.synthetic.angiogram) in the study's
+    own views, a study of ``image:`` views beside it, reconstructed with ``--qca``."""
+    import yaml
+
+    from angiohull.synthetic import SynthOptions, make_case
+    from angiohull.synthetic.angiogram import AngiogramParameters, render_angiogram
+
+    root = case["root"] / "angiograms"
+    (root / "images").mkdir(parents=True)
+    document = yaml.safe_load((case["study"] / "study.yaml").read_text(encoding="utf-8"))
+    synth = make_case(SynthOptions(kind="rca", seed=2025))
+    for i, (entry, view) in enumerate(zip(document["views"], synth.views)):
+        image = render_angiogram(synth.tree.phantom, view.carm, 2025 * 10 + i, AngiogramParameters(collimator_px=8)).image
+        np.save(root / "images" / f"{entry['name']}.npy", image)
+        del entry["mask"]
+        entry["image"] = f"images/{entry['name']}.npy"
+    for key in ("ground_truth", "ground_truth_tree"):
+        document.pop(key, None)
+    (root / "study.yaml").write_text(yaml.safe_dump(document, sort_keys=False), encoding="utf-8")
+    result = case["root"] / "angiograms-result"
+    assert main(["reconstruct", str(root), "-o", str(result), "--no-figure", "--no-viewer", "--qca", "-q"]) == 0
+    return {"study": root, "result": result}
+
+
+def test_reconstruct_qca_measures_lesions_on_the_angiograms(angiogram_case, case, tmp_path):
+    result = angiogram_case["result"]
+    analysis = _json(result / "qca" / "qca.json")
+    assert analysis["lesions"], "the demo tree's lesions were found from the segmented angiograms"
+    assert {les["mld_source"] for les in analysis["lesions"]} == {"images"}
+    calibrations = analysis["attenuation_calibrations"]
+    assert len(calibrations) == 3 and all(c["points"] >= 8 and c["attenuation_per_px"] > 0 for c in calibrations)
+    header, rows = _csv(result / "qca" / "lesions.csv")
+    assert "mld_source" in header and {row["mld_source"] for row in rows} == {"images"}
+    for row, les in zip(rows, analysis["lesions"]):  # %DS from the measured MLD over the profile's reference
+        assert float(row["diameter_stenosis_pct"]) == pytest.approx(
+            100.0 * (1.0 - les["mld_mm"] / les["reference_diameter_mm"]), rel=1e-9)
+    # `qca RESULT --study` gives the same analysis; without the study, the tree's own diameters
+    assert main(["qca", str(result), "-o", str(tmp_path / "again"), "--study", str(angiogram_case["study"]),
+                 "--no-figures", "-q"]) == 0
+    assert _json(tmp_path / "again" / "qca.json") == analysis
+    assert main(["qca", str(result), "-o", str(tmp_path / "tree"), "--no-figures", "-q"]) == 0
+    plain = _json(tmp_path / "tree" / "qca.json")
+    assert {les["mld_source"] for les in plain["lesions"]} == {"tree"} and plain["attenuation_calibrations"] == []
+    assert [les["start_mm"] for les in plain["lesions"]] == [les["start_mm"] for les in analysis["lesions"]]
+
+
+def test_qca_study_must_hold_the_results_views(angiogram_case, case, tmp_path, capsys):
+    # the mask study (same view names) has no angiograms: said, and the tree's diameters are used
+    assert main(["qca", str(angiogram_case["result"]), "-o", str(tmp_path / "masks"), "--study", str(case["study"]),
+                 "--no-figures"]) == 0
+    assert "lesions measured on the tree's diameters: views RAO30_CRA30, LAO60_CRA30, RAO30_CAU30 are masks" in \
+        capsys.readouterr().err
+    other = tmp_path / "other"
+    shutil.copytree(angiogram_case["study"], other)
+    text = (other / "study.yaml").read_text(encoding="utf-8").replace("name: RAO30_CRA30", "name: first")
+    (other / "study.yaml").write_text(text, encoding="utf-8")
+    assert main(["qca", str(angiogram_case["result"]), "-o", str(tmp_path / "bad"), "--study", str(other), "-q"]) == 2
+    assert "the study has no view named 'RAO30_CRA30'" in _error_line(capsys)

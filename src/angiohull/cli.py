@@ -424,7 +424,8 @@ def _cmd_reconstruct(args) -> int:
             try:
                 qca_paths, qca_lines = _run_qca(result.tree, projections, names, staged.path / "qca", progress,
                                                 segments=(), figures=not args.no_figure, lesion_views=True,
-                                                final_dir=staged.target / "qca")
+                                                final_dir=staged.target / "qca",
+                                                attenuation=_study_attenuation(study, names, progress))
             except QcaError as error:  # the reconstruction's outputs are kept
                 qca_error = QcaError(f"--qca: {error} (the reconstruction's outputs are in {staged.target}/)")
             else:
@@ -589,6 +590,10 @@ def _add_qca_parser(sub) -> None:
     p.add_argument("--no-figures", action="store_true", help="write only qca.json, lesions.csv and branches.csv")
     p.add_argument("--no-views", action="store_true",
                    help="no view map per lesion (faster; no best working view in lesions.csv)")
+    p.add_argument("--study", type=Path, default=None, metavar="STUDY_DIR",
+                   help="the study the result was reconstructed from: where its views are angiograms (image:), each "
+                        "lesion's minimal lumen diameter is measured on them, as `reconstruct --qca` does "
+                        "(docs/qca.md); the study is loaded (and segmented) again")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
 
@@ -605,7 +610,8 @@ def _branch_text(tree, index: int) -> str:
 
 def _format_lesion(i: int, row: dict) -> str:
     branch = f"branch {row['branch']}" + (f" ({row['branch_name']})" if row["branch_name"] else "")
-    text = (f"lesion {i}: {branch} {row['diameter_stenosis_pct']:.1f} % DS, MLD {row['mld_mm']:.2f} mm, ref "
+    source = " (angiograms)" if row.get("mld_source") == "images" else ""
+    text = (f"lesion {i}: {branch} {row['diameter_stenosis_pct']:.1f} % DS, MLD {row['mld_mm']:.2f} mm{source}, ref "
             f"{row['reference_diameter_mm']:.2f} mm, {row['lesion_length_mm']:.1f} mm long at "
             f"({row['x_mm']:.1f}, {row['y_mm']:.1f}, {row['z_mm']:.1f}) mm")
     if row.get("best_view"):
@@ -613,10 +619,35 @@ def _format_lesion(i: int, row: dict) -> str:
     return text
 
 
+def _study_attenuation(study, names, progress: _Progress) -> list | None:
+    """The flattened attenuation of each named view of ``study`` (views segmented from their
+    angiograms, ``image:``), in ``names`` order, for measuring lesions on the angiograms; None (and
+    a progress line saying why) where a view has none.
+
+    Raises
+    ------
+    QcaError
+        If a name is not a view of the study.
+    """
+    by_name = {view.name: view for view in study.views}
+    missing = [name for name in names if name not in by_name]
+    if missing:
+        raise QcaError(f"the study has no view named {', '.join(repr(n) for n in missing)} (its views: "
+                       f"{', '.join(repr(v.name) for v in study.views)}); give the study the result was reconstructed from")
+    without = [name for name in names if by_name[name].attenuation is None]
+    if without:
+        progress(f"lesions measured on the tree's diameters: view{'s' if len(without) > 1 else ''} "
+                 f"{', '.join(without)} {'are masks' if len(without) > 1 else 'is a mask'} (image: views, segmented "
+                 f"from their angiograms, give the attenuation to measure lesions on)")
+        return None
+    return [by_name[name].attenuation for name in names]
+
+
 def _run_qca(tree, projections, names, out_dir: Path, progress: _Progress, *, segments, figures: bool,
-             lesion_views: bool, final_dir: Path) -> tuple[dict[str, Path], list[str]]:
-    """Analyse ``tree``, write the files and figures into ``out_dir`` (to be moved to ``final_dir``);
-    return the paths written and the lines that report the lesions."""
+             lesion_views: bool, final_dir: Path, attenuation=None) -> tuple[dict[str, Path], list[str]]:
+    """Analyse ``tree`` (its lesions measured on ``attenuation``, one image per projection, when
+    given), write the files and figures into ``out_dir`` (to be moved to ``final_dir``); return the
+    paths written and the lines that report the lesions."""
     from .qca import QcaSettings, analyse_tree, segment_view_map
     from .qca.views import segment_points
     from .workflow import write_qca_outputs
@@ -626,7 +657,9 @@ def _run_qca(tree, projections, names, out_dir: Path, progress: _Progress, *, se
         segment_points(tree, branch, start, end)
     progress(f"analysing the vessel tree ({tree.n_branches} branches, {len(tree.bifurcations)} bifurcations"
              f"{f', {len(projections)} views' if projections else ', no acquired views'})")
-    result = analyse_tree(tree, projections, names, settings)
+    if attenuation is not None:
+        progress(f"lesions' minimal lumen diameters measured on the {len(attenuation)} angiograms")
+    result = analyse_tree(tree, projections, names, settings, attenuation=attenuation)
     segment_maps = []
     for branch, start, end in segments:
         progress(f"view map of {_branch_text(tree, branch)} "
@@ -677,13 +710,23 @@ def _cmd_qca(args) -> int:
     if not projections:
         why = "its report.json lists none" if (args.result / "report.json").is_file() else "no report.json"
         progress(f"no acquired views in {args.result} ({why}): qca.json gets no per-view foreshortening and overlap")
+    attenuation = None
+    if args.study is not None:
+        if not projections:
+            raise QcaError(f"--study: {args.result} lists no acquired views (report.json), so the angiograms cannot be "
+                           f"matched to the tree's views")
+        from .study import load_study
+
+        progress(f"loading {args.study} for its angiograms")
+        attenuation = _study_attenuation(load_study(args.study), names, progress)
     out = args.output if args.output is not None else args.result / "qca"
     inputs = [args.result / name for name in ("tree.json", "report.json") if (args.result / name).exists()]
     # its own folder (RESULT_DIR/qca by default) holding only an earlier analysis is replaced
     with output_folder(out, inputs=inputs, overwrite=args.overwrite, what="the analysis",
                        replaceable=lambda folder: folder_holds_only(folder, QCA_OUTPUTS)) as staged:
         _, lines = _run_qca(tree, projections, names, staged.path, progress, segments=args.segment,
-                            figures=not args.no_figures, lesion_views=not args.no_views, final_dir=staged.target)
+                            figures=not args.no_figures, lesion_views=not args.no_views, final_dir=staged.target,
+                            attenuation=attenuation)
     if not args.quiet:
         print("\n".join(lines))
     return 0

@@ -45,7 +45,7 @@ from .errors import DicomError, GeometryError, InputWarning, SegmentationError, 
 from ._models import find_model, short_repr
 from ._yaml import read_yaml_file
 from .geometry import CArmGeometry, Projection
-from .segmentation import SegmentationParameters, segment_vessels
+from .segmentation import SegmentationParameters, segment_vessels, segment_vessels_detailed
 from .tree import VesselTree
 
 __all__ = ["View", "Study", "load_study", "save_study", "study_from_dicom", "DicomViewSummary", "FORMAT_VERSION",
@@ -94,6 +94,10 @@ class View:
         has the same geometry and none was named.
     image_path : Path or None
         The raw image the mask was segmented from, if any.
+    attenuation : ndarray of float64 or None
+        For a view segmented from its image: the flattened attenuation the segmentation computed
+        (:attr:`angiohull.segmentation.SegmentationResult.attenuation`, the mask's shape), on which
+        the quantitative analysis measures lesions (``reconstruct --qca``); None otherwise.
 
     Raises
     ------
@@ -110,6 +114,7 @@ class View:
     dicom_path: Optional[Path] = None
     frame: Optional[int] = None
     image_path: Optional[Path] = None
+    attenuation: Optional[np.ndarray] = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -126,6 +131,12 @@ class View:
         self._check_source(source, where)
         object.__setattr__(self, "mask", _readonly_bool(mask))
         object.__setattr__(self, "source", source)
+        if self.attenuation is not None:
+            attenuation = np.array(self.attenuation, dtype=np.float64)
+            if attenuation.shape != mask.shape:
+                raise StudyError(f"{where}: attenuation shape {attenuation.shape} differs from the mask's {mask.shape}")
+            attenuation.setflags(write=False)
+            object.__setattr__(self, "attenuation", attenuation)
         for name in ("mask_path", "dicom_path", "image_path"):
             value = getattr(self, name)
             object.__setattr__(self, name, None if value is None else Path(value))
@@ -470,9 +481,10 @@ def _geometry(entry: _ViewEntry, shape: tuple[int, int], field: str) -> tuple[Pr
         raise _Problem(field, str(exc)) from None
 
 
-def _read_view_mask(entry: _ViewEntry, root: Path, name: str, where: str,
-                    header: Optional[dicom.XAHeader] = None) -> tuple[np.ndarray, Optional[int]]:
-    """The view's mask (read, or segmented from its image) and the DICOM frame the image came from.
+def _read_view_mask(entry: _ViewEntry, root: Path, name: str, where: str, header: Optional[dicom.XAHeader] = None
+                    ) -> tuple[np.ndarray, Optional[int], Optional[np.ndarray]]:
+    """The view's mask (read, or segmented from its image), the DICOM frame the image came from and
+    the segmentation's flattened attenuation (None for a mask).
 
     ``header`` is the geometry's XA header, reused when the image is the same file.
     """
@@ -488,7 +500,7 @@ def _read_view_mask(entry: _ViewEntry, root: Path, name: str, where: str,
                 f"view {name!r}: {mask_path}: the mask has no vessel pixel (all {mask.shape[0]}x{mask.shape[1]} "
                 "pixels are zero); expected nonzero vessel pixels",
             )
-        return mask, None
+        return mask, None, None
     try:
         params = SegmentationParameters().replace(entry.segmentation or {})
     except SegmentationError as exc:
@@ -508,14 +520,15 @@ def _read_view_mask(entry: _ViewEntry, root: Path, name: str, where: str,
             image, frame_used = xa.image, xa.frame
     except StudyError as exc:  # DicomError is a StudyError
         raise _Problem(f"{where}.image", f"view {name!r}: {exc}") from None
-    mask = segment_vessels(image, params)
+    segmented = segment_vessels_detailed(image, params)
+    mask = segmented.mask
     if not mask.any():
         raise _Problem(
             f"{where}.image",
             f"view {name!r}: {image_path}: the segmentation found no vessel; check the image, or lower "
             "segmentation: {high_threshold: ..., seed_snr: ...} (see angiohull.segmentation.SegmentationParameters)",
         )
-    return mask, frame_used
+    return mask, frame_used, segmented.attenuation
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -562,17 +575,17 @@ def _dicom_geometry(entry: _ViewEntry, root: Path, header: dicom.XAHeader, shape
 def _load_view(index: int, entry: _ViewEntry, root: Path) -> View:
     name, where = entry.resolved_name, f"views[{index}]"
     header = None if entry.dicom is None else _dicom_header(entry, root, where, name)
-    mask, frame_used = _read_view_mask(entry, root, name, where, header)
+    mask, frame_used, attenuation = _read_view_mask(entry, root, name, where, header)
     mask_path = None if entry.mask is None else root / entry.mask
     image_path = None if entry.image is None else root / entry.image
     if entry.dicom is not None:
         carm, dicom_path, frame = _dicom_geometry(entry, root, header, mask.shape, frame_used, where, name)
         return View(name=name, mask=mask, projection=carm.projection(), carm=carm, source="dicom", mask_path=mask_path,
-                    dicom_path=dicom_path, frame=frame, image_path=image_path)
+                    dicom_path=dicom_path, frame=frame, image_path=image_path, attenuation=attenuation)
     source = "carm" if entry.carm is not None else "projection_matrix"
     projection, carm = _geometry(entry, mask.shape, f"{where}.{source}")
     return View(name=name, mask=mask, projection=projection, carm=carm, source=source, mask_path=mask_path,
-                image_path=image_path)
+                image_path=image_path, attenuation=attenuation)
 
 
 _PATH_FIELDS = ("mask", "image", "dicom")
