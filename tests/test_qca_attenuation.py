@@ -170,3 +170,50 @@ def test_bad_input_names_what_is_wrong(scene):
         image_diameters(tree, [281], projections, images, calibrations)
     with pytest.raises(QcaError, match="one calibration per view is needed: 1 for 2 views"):
         image_diameters(tree, [10], projections, images, calibrations[:1])
+
+
+def _two_vessel_scene(saturation: float | None):
+    """A wide stenosed vessel (radius 1.6 mm, 8 px: wider than any calibration point) and a narrow
+    healthy one leaving its start (radius 0.8 mm, 4 px: the calibration's); the images linear in
+    the chord, or bent by ``s (1 - exp(-A / s))`` (a saturating image chain)."""
+    arc = np.arange(0.0, 70.0 + 1e-9, 0.25)
+    fine = np.arange(0.0, 70.0 + 1e-9, 0.05)
+    wide = lambda a: 1.6 / RADIUS_MM * _radius(a)  # noqa: E731 - the same stenosis, scaled
+    side_dir = np.array([0.2, -0.1, 1.0]) / math.sqrt(1.05)
+    side = _centreline(np.zeros(1))[0] + np.arange(0.0, 60.0 + 1e-9, 0.25)[:, None] * side_dir[None, :]
+    side = side - side[0] + _centreline(arc[:1])[0]
+    side_fine = side[0] + np.arange(0.0, 60.0 + 1e-9, 0.05)[:, None] * side_dir[None, :]
+    phantom = TubePhantom((Tube(_centreline(fine), wide(fine)), Tube(side_fine, 0.8)), "two vessels")
+    projections = [CArmGeometry(a, b, 1200.0, SOD, (PIXEL_MM, PIXEL_MM), (512, 512)).projection()
+                   for a, b in ((0.0, 0.0), (30.0, -20.0))]
+    images = []
+    for p in projections:
+        a = ndi.gaussian_filter(MU_PER_MM * vessel_chord_length_mm(phantom, p), BLUR_PX)
+        images.append(a if saturation is None else saturation * (1.0 - np.exp(-a / saturation)))
+    radius = wide(arc)
+    widened = np.where(radius < 1.6, radius + 0.1 * (radius < 1.55), radius)  # the mask's reading: 0.2 mm wide
+    tree = VesselTree((Branch(_centreline(arc), widened, name="wide"),
+                       Branch(side, 0.8, parent=0, parent_point=0, name="side")))
+    return projections, images, tree
+
+
+def test_a_lesion_keeps_the_trees_diameter_where_the_images_break_the_model():
+    true_mld = 2.0 * 1.6 * (1.0 - SEVERITY)
+    projections, images, tree = _two_vessel_scene(None)
+    linear = analyse_tree(tree, projections, attenuation=images, settings=_no_maps())
+    [lesion] = [les for les in linear.lesions if les.branch == 0]
+    assert lesion.mld_source == "images" and lesion.mld_mm == pytest.approx(true_mld, abs=0.04)
+    # saturating images (the wide vessel's peak attenuation 0.8 bent to 0.15): calibrated on the
+    # narrow vessel, the model reads the wide one's flanks 1.5 times as wide as the tree (1.25 times
+    # with 0.3), beyond the 20 % it allows, so the lesion keeps the tree's (widened) reading
+    projections, images, tree = _two_vessel_scene(0.15)
+    bent = analyse_tree(tree, projections, attenuation=images, settings=_no_maps())
+    [lesion] = [les for les in bent.lesions if les.branch == 0]
+    assert lesion.mld_source == "tree" and lesion.mld_mm == pytest.approx(true_mld + 0.2, abs=0.04)
+    assert all(c.usable for c in bent.calibrations)
+
+
+def _no_maps():
+    from angiohull.qca import QcaSettings
+
+    return QcaSettings(lesion_views=False)

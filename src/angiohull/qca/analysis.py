@@ -341,7 +341,8 @@ def _lesions_on_images(tree: VesselTree, branches: list[BranchQca], projections:
                        attenuation: Sequence[np.ndarray], settings: AttenuationFitSettings
                        ) -> tuple[list[BranchQca], tuple[ViewCalibration, ...]]:
     """Every lesion's MLD measured again on the angiograms (:mod:`.attenuation`, step 3): the least
-    image diameter of its branch's points within its span."""
+    image diameter of its branch's points within its span, over the views whose image diameters
+    beside the lesion agree with the tree's (step 4)."""
     from .attenuation import calibrate_views, image_diameters
 
     every = [les for b in branches for les in b.profile.lesions]
@@ -357,19 +358,35 @@ def _lesions_on_images(tree: VesselTree, branches: list[BranchQca], projections:
         arc = branch.arc_length_mm
         measured = []
         for les in bq.profile.lesions:
-            near = np.flatnonzero((arc >= les.start_mm - 1e-9) & (arc <= les.end_mm + 1e-9))
-            if near.size == 0:
-                near = np.array([int(np.argmin(np.abs(arc - les.mld_arc_mm)))])
-            m = image_diameters(tree, offsets[bq.index] + near, projections, attenuation, calibrations,
-                                np.full(near.size, 0.5 * les.reference_diameter_mm), settings)
-            if not np.isfinite(m.diameter_mm).any():
+            span = np.flatnonzero((arc >= les.start_mm - 1e-9) & (arc <= les.end_mm + 1e-9))
+            if span.size == 0:
+                span = np.array([int(np.argmin(np.abs(arc - les.mld_arc_mm)))])
+            before = (arc >= les.start_mm - settings.flank_mm) & (arc < les.start_mm - settings.flank_gap_mm)
+            after = (arc > les.end_mm + settings.flank_gap_mm) & (arc <= les.end_mm + settings.flank_mm)
+            flank = np.flatnonzero(before | after)
+            both = np.concatenate([span, flank])
+            m = image_diameters(tree, offsets[bq.index] + both, projections, attenuation, calibrations,
+                                np.full(both.size, 0.5 * les.reference_diameter_mm), settings)
+            per_view = m.per_view_mm[:, :span.size]
+            agree = np.zeros(len(projections), dtype=bool)
+            for v in range(len(projections)):  # a view whose model reproduces the vessel beside the lesion
+                beside = m.per_view_mm[v, span.size:]
+                ok = np.isfinite(beside)
+                if ok.sum() >= settings.min_flank_points:
+                    ratio = float(np.median(beside[ok] / (2.0 * branch.radius_mm[flank[ok]])))
+                    agree[v] = abs(math.log(ratio)) <= math.log(1.0 + settings.flank_agreement)
+            per_view = np.where(agree[:, None], per_view, np.nan)
+            seen = np.isfinite(per_view).any(axis=0)
+            if not seen.any():
                 measured.append(les)
                 continue
-            k = int(np.nanargmin(m.diameter_mm))
-            mld = float(m.diameter_mm[k])
+            diameter = np.full(span.size, np.inf)
+            diameter[seen] = np.nanmedian(per_view[:, seen], axis=0)
+            k = int(np.argmin(diameter))
+            mld = float(diameter[k])
             ratio = mld / les.reference_diameter_mm
-            measured.append(replace(les, mld_arc_mm=float(arc[near[k]]),
-                                    mld_point_mm=tuple(float(x) for x in branch.points_mm[near[k]]), mld_mm=mld,
+            measured.append(replace(les, mld_arc_mm=float(arc[span[k]]),
+                                    mld_point_mm=tuple(float(x) for x in branch.points_mm[span[k]]), mld_mm=mld,
                                     diameter_stenosis_pct=100.0 * (1.0 - ratio),
                                     area_stenosis_pct=100.0 * (1.0 - ratio * ratio), mld_source="images"))
         out.append(replace(bq, profile=replace(bq.profile, lesions=tuple(measured))))
