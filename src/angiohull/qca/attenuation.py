@@ -47,10 +47,13 @@ where it crosses a level, reads ``R`` without the threshold's bias and with less
 farther along it than the two radii and 1 mm) has a projected disc, widened by
 ``overlap_margin_px``, that reaches the sampled line.
 
-Measured (QCA benchmark's renders, 3 segmented views, minimal lumen at the true lesion point, one
-view at a time, trees 0-19; 2026-12-06): MLD error -0.005 ± 0.091 mm, against the densitometric
-integral (:mod:`angiohull.densitometry`) +0.071 ± 0.146 mm; calibration: ``sigma`` 1.2 px (the
-renderer's 0.6 px and the segmentation's 1 px smoothing: 1.17 px).
+Measured (QCA benchmark's renders, 3 segmented views, 2026-12-06; docs/qca.md): at the true lesion
+point, one view at a time (trees 0-19, a least-squares version of the same model), MLD error
+-0.005 ± 0.091 mm, against the densitometric integral (:mod:`angiohull.densitometry`) +0.071 ±
+0.146 mm; calibration ``sigma`` 1.2 px (the renderer's 0.6 px and the segmentation's 1 px
+smoothing: 1.17 px). Lesions of the benchmark's 60 trees (steps 1-4): %DS +0.6 ± 4.3 points and
+MLD -0.004 ± 0.091 mm, where the tree's own diameters (masks) give -1.5 ± 6.7 and +0.040 ± 0.129;
+on 60 other trees +0.3 ± 5.8 against -1.8 ± 7.2.
 """
 
 from __future__ import annotations
