@@ -20,7 +20,8 @@ A study is a folder with a ``study.yaml``::
 
 Each view has exactly one geometry source (``carm``, ``projection_matrix`` or ``dicom``) and
 exactly one of ``mask`` (a binary vessel mask) and ``image`` (segmented with
-:func:`angiohull.segmentation.segment_vessels`). Paths are relative to the folder. :func:`load_study` checks everything and reports every problem
+:func:`angiohull.segmentation.segment_vessels_detailed`; the view keeps the flattened attenuation
+too, ``View.attenuation``, on which ``reconstruct --qca`` measures lesions). Paths are relative to the folder. :func:`load_study` checks everything and reports every problem
 it finds in one :class:`~angiohull.errors.StudyError`, one line per problem, each line
 ``<path to study.yaml>: <field>: <what was expected, what was received>``.
 """
