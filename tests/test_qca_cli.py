@@ -388,9 +388,14 @@ def test_reconstruct_qca_measures_lesions_on_the_angiograms(angiogram_case, case
         assert float(row["diameter_stenosis_pct"]) == pytest.approx(
             100.0 * (1.0 - les["mld_mm"] / les["reference_diameter_mm"]), rel=1e-9)
     # `qca RESULT --study` gives the same analysis; without the study, the tree's own diameters
-    assert main(["qca", str(result), "-o", str(tmp_path / "again"), "--study", str(angiogram_case["study"]),
-                 "--no-figures", "-q"]) == 0
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        assert main(["qca", str(result), "-o", str(tmp_path / "again"), "--study", str(angiogram_case["study"]),
+                     "--no-figures"]) == 0
     assert _json(tmp_path / "again" / "qca.json") == analysis
+    n = len(analysis["lesions"])
+    assert f"; {n} of {n} MLDs measured on the angiograms\n" in stdout.getvalue()
+    assert stdout.getvalue().count("(angiograms), ref") == n
     assert main(["qca", str(result), "-o", str(tmp_path / "tree"), "--no-figures", "-q"]) == 0
     plain = _json(tmp_path / "tree" / "qca.json")
     assert {les["mld_source"] for les in plain["lesions"]} == {"tree"} and plain["attenuation_calibrations"] == []

@@ -693,6 +693,12 @@ def _run_qca(tree, projections, names, out_dir: Path, progress: _Progress, *, se
         summary += f"; max {worst.diameter_stenosis_pct:.1f} % DS ({_branch_text(tree, worst.branch)})"
     if without:
         summary += f"; {without} branch{'es' if without != 1 else ''} too short for a reference diameter"
+    if attenuation is not None and result.lesions:
+        on_images = sum(les.mld_source == "images" for les in result.lesions)
+        summary += (f"; {on_images} of {len(result.lesions)} MLDs measured on the angiograms"
+                    + ("" if on_images == len(result.lesions) else
+                       " (the others: no view saw the lesion clear of other vessels, or none read the vessel beside "
+                       "it as the tree does)"))
     lines.append(summary)
     lines.append(f"outputs in {final_dir}/: {', '.join(path.name for path in paths.values())}")
     return paths, lines
