@@ -189,15 +189,6 @@ def _detrended(values: np.ndarray, q: np.ndarray) -> np.ndarray:
     return values - values.mean(axis=-1, keepdims=True) - slope * qc
 
 
-def _tangents(tree: VesselTree) -> np.ndarray:
-    out = []
-    for b in tree.branches:
-        p = b.points_mm
-        g = np.gradient(p, axis=0) if len(p) > 1 else np.tile([1.0, 0.0, 0.0], (len(p), 1))
-        out.append(g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12))
-    return np.concatenate(out)
-
-
 @dataclass
 class _Geometry:
     uv: np.ndarray  # (N, 2) px
@@ -231,7 +222,8 @@ def _arrays(tree: VesselTree) -> _TreeArrays:
     arc = np.concatenate([b.arc_length_mm for b in tree.branches])
     length = np.array([b.length_mm for b in tree.branches])[owner]
     offsets = np.concatenate([[0], np.cumsum([b.n_points for b in tree.branches])])
-    return _TreeArrays(points, radius, owner, arc, length, _tangents(tree), offsets)
+    return _TreeArrays(points, radius, owner, arc, length, np.concatenate([b.tangents() for b in tree.branches]),
+                       offsets)
 
 
 def _clear(t: _TreeArrays, g: _Geometry, index: np.ndarray, half_px: np.ndarray, margin_px: float) -> np.ndarray:
