@@ -51,9 +51,9 @@ Measured (QCA benchmark's renders, 3 segmented views, 2026-12-06; docs/qca.md): 
 point, one view at a time (trees 0-19, a least-squares version of the same model), MLD error
 -0.005 ± 0.091 mm, against the densitometric integral (:mod:`angiohull.densitometry`) +0.071 ±
 0.146 mm; calibration ``sigma`` 1.2 px (the renderer's 0.6 px and the segmentation's 1 px
-smoothing: 1.17 px). Lesions of the benchmark's 60 trees (steps 1-4): %DS +0.6 ± 4.3 points and
+smoothing: 1.17 px). Lesions of the benchmark's 60 trees (steps 1-4): %DS +0.7 ± 4.3 points and
 MLD -0.004 ± 0.091 mm, where the tree's own diameters (masks) give -1.5 ± 6.7 and +0.040 ± 0.129;
-on 60 other trees +0.3 ± 5.8 against -1.8 ± 7.2.
+on 60 other trees +0.3 ± 5.8 against -1.8 ± 7.2, and on lattices 0.3 / 0.6 % coarser 5.9 / 5.3.
 """
 
 from __future__ import annotations
