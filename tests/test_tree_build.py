@@ -1106,3 +1106,27 @@ def test_a_skeleton_gives_the_same_tree_whatever_its_voxel_edge_and_origin():
             assert (parent, at) == (parent0, at0) and p.shape == p0.shape
             np.testing.assert_allclose(p, p0, atol=1e-9)
             np.testing.assert_allclose(r, r0, rtol=1e-9)
+
+
+def test_many_small_parts_join_nearest_first_through_each_other():
+    """A line of 80 voxels and 468 single voxels beside it, every 2 voxels along it, in 4
+    directions: 156 within reach of the line (3 voxels off it; a join reaches r_a + r_b + 3 = 4),
+    156 reachable only through one of those (3 voxels beyond it, 6 from the line) and 156 out of
+    reach of everything (8 beyond those). Every reachable voxel joins, the rest are dropped: the
+    distances to the growing tree are kept up to date as parts join (every join re-measured every
+    pending part before, which on a noisy hull's thousands of parts took minutes)."""
+    skeleton = np.zeros((90, 40, 40), bool)
+    skeleton[5:85, 20, 20] = True
+    offsets = ((0, 1), (0, -1), (1, 1), (1, -1))  # (axis y or z, side)
+    for x in range(6, 84, 2):
+        for axis, side in offsets:
+            for distance in (3, 6, 14):
+                p = [x, 20, 20]
+                p[1 + axis] += side * distance
+                skeleton[tuple(p)] = True
+    radius = np.full(skeleton.shape, 0.5)
+    tree, info = tree_from_skeleton(skeleton, radius, origin_mm=np.zeros(3), spacing_mm=1.0)
+    per_distance = len(range(6, 84, 2)) * len(offsets)
+    assert info.parts == 1 + 3 * per_distance
+    assert info.parts_joined == 2 * per_distance and info.parts_dropped == per_distance
+    assert info.voxels_dropped == per_distance and tree.root.length_mm >= 79.0
