@@ -18,7 +18,8 @@ volume) and a radius estimate per voxel (for example the volume's distance trans
    parts whose gap is below the best cost found so far), and the gaps are kept up to date as
    parts join (each pending voxel's distance to the tree lowered to the joined part's where
    nearer: exact, voxel coordinates being whole numbers; measuring every pending part again at
-   each join took over 15 minutes on a noisy hull of 3 700 parts, now 19 s). With ``"largest"`` the parts join largest first, each to the tree as it is then: a
+   each join took over 15 minutes on a noisy hull of 3 700 parts). With ``"largest"`` the parts
+   join largest first, each to the tree as it is then: a
    part whose way to the tree runs through a smaller part not joined yet is bridged the long way
    round (on a generated left tree, the distal circumflex went 72 mm through the hull onto the
    LAD, as the refined hull had dropped a few millimetres of the circumflex twice).
@@ -232,8 +233,12 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
         # squared distances are too. Before, every join queried every pending part again: on a
         # noisy hull of thousands of parts that took over 15 minutes.
         waiting = np.concatenate(list(pending.values()))
-        starts = np.concatenate([[0], np.cumsum([len(m) for m in pending.values()])[:-1]])
+        sizes = np.array([len(m) for m in pending.values()])
+        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        group = np.repeat(np.arange(len(sizes)), sizes)  # each waiting voxel's part, as an index
         group_part = np.fromiter(pending.keys(), dtype=np.int64, count=len(pending))
+        group_of = {int(q): g for g, q in enumerate(group_part)}
+        open_group = np.ones(len(sizes), dtype=bool)
         to_tree = cKDTree(points[np.flatnonzero(alive[:n])]).query(points[waiting])[0]
     while pending:
         # the part nearest to the tree joins first (joining the largest first, a part whose gap to
@@ -241,15 +246,13 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
         # the support hull, onto another vessel); a bridge costs its path's length, at least the gap
         kept = np.flatnonzero(alive[:n])
         kept_tree = cKDTree(points[kept])
-        gaps = []
-        if nearest_first:
-            gaps = _nearest_gaps(to_tree, waiting, starts, group_part, pending)
+        if nearest_first:  # by (gap, part)
+            gaps = _nearest_gaps(to_tree, waiting, starts, group, group_part, open_group)
         else:  # the largest part still pending, whatever its gap
             first = next(p for p in order[1:].tolist() if p in pending)
             distance, nearest = kept_tree.query(points[pending[first]])
             i = int(np.argmin(distance))
-            gaps.append((float(distance[i]), first, pending[first][i], kept[nearest[i]]))
-        gaps.sort(key=lambda g: (g[0], g[1]))
+            gaps = [(float(distance[i]), first, pending[first][i], kept[nearest[i]])]
         best = None  # (cost, part, a, b, inner path or None)
         for gap, p, a, b in gaps:
             if best is not None and gap >= best[0]:
@@ -291,8 +294,10 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
         alive[joined] = True
         info.parts_joined += 1
         if nearest_first and pending:
+            g = group_of[p]
+            open_group[g] = False
             to_tree = _nearer(to_tree, points[waiting], points[joined])
-            to_tree[np.isin(waiting, joined)] = np.inf
+            to_tree[starts[g]:starts[g] + len(joined)] = np.inf
     for p, members in [*dropped, *pending.items()]:  # out of reach of the tree
         info.parts_dropped += 1
         info.voxels_dropped += len(members)
@@ -365,16 +370,19 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
                                    b.parent_point, b.name) for b in tree.branches)), info
 
 
-def _nearest_gaps(to_tree: np.ndarray, waiting: np.ndarray, starts: np.ndarray, group_part: np.ndarray,
-                  pending: dict) -> list:
-    """``(gap, part, a, None)`` of every pending part: its least distance to the tree and its first
-    voxel at that distance (``a``, in voxel order); ``a``'s nearest tree voxel is found when needed."""
+def _nearest_gaps(to_tree: np.ndarray, waiting: np.ndarray, starts: np.ndarray, group: np.ndarray,
+                  group_part: np.ndarray, open_group: np.ndarray):
+    """``(gap, part, a, None)`` of every pending part (``open_group``) by gap, then part: its least
+    distance to the tree and its first voxel at that distance (``a``, in voxel order), lazily (the
+    loop stops at the first straight join); ``a``'s nearest tree voxel is found when needed."""
     least = np.minimum.reduceat(to_tree, starts)
-    group = np.repeat(np.arange(len(starts)), np.diff(np.append(starts, len(waiting))))
     hits = np.flatnonzero(to_tree == least[group])
     first_group, first_hit = np.unique(group[hits], return_index=True)
-    return [(float(least[g]), int(group_part[g]), int(waiting[h]), None)
-            for g, h in zip(first_group, hits[first_hit]) if int(group_part[g]) in pending]
+    first_voxel = np.zeros(len(starts), dtype=np.int64)
+    first_voxel[first_group] = waiting[hits[first_hit]]
+    candidates = np.flatnonzero(open_group)
+    ordered = candidates[np.lexsort((group_part[candidates], least[candidates]))]
+    return ((float(least[g]), int(group_part[g]), int(first_voxel[g]), None) for g in ordered)
 
 
 def _nearer(distance: np.ndarray, queries: np.ndarray, added: np.ndarray) -> np.ndarray:
