@@ -290,7 +290,7 @@ def _run_tree(task: tuple[str, int, float]) -> list[dict]:
         try:
             qca = (analyse_tree(result.tree, settings=settings) if mld == "tree" else
                    analyse_tree(result.tree, projections, settings=settings,
-                                attenuation=[s.attenuation for s in segmentations[:len(views)]]))
+                                attenuation=[s.lumen_attenuation for s in segmentations[:len(views)]]))
         except Exception as exc:  # noqa: BLE001 - a failed analysis is a row (and counted), not a crash
             rows.append({**row, "error": f"analysis: {type(exc).__name__}: {exc}"})
             continue

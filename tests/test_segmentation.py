@@ -401,3 +401,41 @@ def test_bridging_does_not_grow_a_network_out_of_ridge_texture(seed):
     plain = np.count_nonzero(segment_vessels(image, SegmentationParameters(bridge_px=0)))
     joined = np.count_nonzero(segment_vessels(image))
     assert plain > 0 and joined <= 1.15 * plain
+
+
+def test_lumen_attenuation_keeps_a_faint_vessel_on_a_bright_ridge():
+    """A vessel of known chord (mu pi R^2 of attenuation across it) on a flat background and the
+    same vessel along a bright ridge of the body texture, where the smoothed closing passes under
+    the true background: the clipped attenuation (the segmentation's input) loses a large part of
+    the ridge vessel, the lumen attenuation keeps it (areas across each vessel, minus the same
+    image without the vessels, a straight background taken out)."""
+    n = 200
+    y, x = np.mgrid[0:n, 0:n].astype(float)
+    mu, radius = 0.05, 1.5  # attenuation per px of chord, lumen radius px
+    sub = np.arange(n)[:, None] + (np.arange(20) + 0.5)[None, :] / 20 - 0.5  # 20 samples per pixel
+
+    def chord(centre):
+        return (2.0 * np.sqrt(np.clip(radius ** 2 - (sub - centre) ** 2, 0.0, None))).mean(axis=1)
+
+    body = 1.0 - 0.15 * np.exp(-0.5 * ((x - 140.0) / 12.0) ** 2)  # line integral with a bright ridge at x = 140
+    body[(x - 30) ** 2 + (y - 30) ** 2 < 36] = 3.0  # a dark patch sets the same black level in both images
+    vessels = np.broadcast_to((chord(70.0) + chord(140.0))[None, :], (n, n))
+    params = SegmentationParameters(collimator=False)
+    with_vessels = segment_vessels_detailed(np.exp(-body) * np.exp(-mu * vessels), params)
+    without = segment_vessels_detailed(np.exp(-body), params)
+    truth = mu * np.pi * radius ** 2
+
+    def area(name, centre):
+        d = (getattr(with_vessels, name) - getattr(without, name))[60:180].mean(axis=0)
+        q = np.arange(n) - centre
+        side = (np.abs(q) >= 6) & (np.abs(q) <= 14)
+        return float((d - np.polyval(np.polyfit(q[side], d[side], 1), q))[np.abs(q) < 6].sum())
+
+    flat, ridge = area("lumen_attenuation", 70.0), area("lumen_attenuation", 140.0)
+    assert flat == pytest.approx(truth, rel=0.05)  # the black level's gain B / (B - z) is a few %
+    assert ridge == pytest.approx(flat, rel=0.05)
+    assert area("attenuation", 70.0) == pytest.approx(flat, rel=1e-6)  # the clip does not act there
+    assert area("attenuation", 140.0) < 0.7 * flat
+    # the clip is all that differs: equal wherever the clipped attenuation is above its floor
+    above = with_vessels.attenuation > with_vessels.attenuation[with_vessels.field].min() + 1e-9
+    np.testing.assert_allclose(with_vessels.lumen_attenuation[above], with_vessels.attenuation[above], atol=1e-12)

@@ -18,7 +18,9 @@ a well-known operation with a documented parameter (:class:`SegmentationParamete
    the noise) and its noise level ``sigma`` is estimated robustly (1.4826 x the median absolute
    deviation over the field). As ``z`` moves with any linear rescaling of the pixel values, an
    8-bit export with a display window (clipping the darkest pixels) or an offset segments like the
-   original image.
+   original image. ``B`` is taken at least ``I`` (``A >= 0`` before the median is removed); the same
+   image without that clip is :attr:`SegmentationResult.lumen_attenuation`, which the lesion
+   measurement of :mod:`angiohull.qca.attenuation` reads.
 3. **Multiscale vesselness** of ``A`` (bright ridges): :func:`skimage.filters.sato` (default) or
    :func:`skimage.filters.frangi` at the scales ``sigmas_px``, divided by its
    ``reference_percentile`` percentile over the field.
@@ -328,6 +330,11 @@ class SegmentationResult:
         Robust noise level of ``attenuation`` over the field.
     parameters : SegmentationParameters
         The parameters used.
+    lumen_attenuation : ndarray of float64, shape (rows, cols), or None
+        ``attenuation`` without its clip at the background (:func:`flatten_background` with
+        ``clip=False``): where the smoothed background passes under a faint vessel, the clip cuts
+        the vessel's lower part off with the noise (on the QCA benchmark's renders a stenosis read
+        at half its attenuation); this keeps it, for the lumen fit of :mod:`angiohull.qca.attenuation`.
     """
 
     mask: np.ndarray
@@ -336,6 +343,7 @@ class SegmentationResult:
     vesselness: np.ndarray
     noise_sigma: float
     parameters: SegmentationParameters
+    lumen_attenuation: Optional[np.ndarray] = None
 
 
 def _as_image(image: Any) -> np.ndarray:
@@ -428,9 +436,15 @@ def _fill_outside(image: np.ndarray, field: np.ndarray) -> np.ndarray:
     return image[near_r, near_c]
 
 
-def flatten_background(image: np.ndarray, field: np.ndarray, params: SegmentationParameters) -> tuple[np.ndarray, float]:
+def flatten_background(image: np.ndarray, field: np.ndarray, params: SegmentationParameters, *,
+                       clip: bool = True) -> tuple[np.ndarray, float]:
     """Step 2: the flattened attenuation ``A = log((B - z) / (I - z))`` and its robust noise sigma
     over the field.
+
+    With ``clip`` (the segmentation's input) ``B`` is at least ``I``, so ``A`` is never below the
+    background's level; without it (:attr:`SegmentationResult.lumen_attenuation`) ``B`` is the
+    smoothed closing alone, and ``A`` keeps its noise on both sides and the whole of a faint vessel
+    that the smoothed closing passes under (the same values wherever the clip does not act).
 
     ``z`` is the image's black level, estimated from its own darkest pixels (:data:`BLACK_LEVEL_PERCENTILE`
     and :data:`BLACK_LEVEL_MARGIN`): a value of 0 does not mean "no X-rays" in an image that was
@@ -440,7 +454,8 @@ def flatten_background(image: np.ndarray, field: np.ndarray, params: Segmentatio
     quantiles, ``z`` moves with any rescaling ``a I + b`` (a > 0), so ``A`` does not change; for
     an image whose 0 is no X-rays, ``z`` is close to 0 and ``A`` is the vessels' attenuation.
     """
-    return _flatten(image, field, params, black_level=True)
+    attenuation, sigma, unclipped = _flatten_both(image, field, params, black_level=True)
+    return (attenuation if clip else unclipped), sigma
 
 
 BLACK_LEVEL_PERCENTILE = 0.01
@@ -457,26 +472,40 @@ def _flatten(image: np.ndarray, field: np.ndarray, params: SegmentationParameter
              black_level: bool) -> tuple[np.ndarray, float]:
     """:func:`flatten_background`, or without ``black_level`` plain ``log(B / I)`` (the frame score's:
     the frames of one run share one scaling, and their ranking stays what it was)."""
+    attenuation, sigma, _ = _flatten_both(image, field, params, black_level=black_level)
+    return attenuation, sigma
+
+
+def _flatten_both(image: np.ndarray, field: np.ndarray, params: SegmentationParameters, *,
+                  black_level: bool) -> tuple[np.ndarray, float, np.ndarray]:
+    """The clipped attenuation, its noise sigma and the unclipped one (:func:`flatten_background`),
+    both shifted by the clipped one's median over the field."""
     work = _fill_outside(image, field)
     if params.smoothing_px > 0:
         work = ndi.gaussian_filter(work, params.smoothing_px, mode="nearest")
     background = ndi.grey_closing(work, size=(params.background_px, params.background_px), mode="nearest")
-    background = np.maximum(ndi.gaussian_filter(background, params.background_px / 5.0, mode="nearest"), work)
+    smooth = ndi.gaussian_filter(background, params.background_px / 5.0, mode="nearest")
     if black_level and field.any():
         dark, middle = np.percentile(work[field], [BLACK_LEVEL_PERCENTILE, 50.0])
         zero = dark - BLACK_LEVEL_MARGIN * (middle - dark)
         floor = 1e-3 * max(middle - zero, 1e-12)
-        attenuation = np.log(np.maximum(background - zero, floor)) - np.log(np.maximum(work - zero, floor))
+        log_work = np.log(np.maximum(work - zero, floor))
+        unclipped = np.log(np.maximum(smooth - zero, floor)) - log_work
+        attenuation = np.log(np.maximum(np.maximum(smooth, work) - zero, floor)) - log_work
     else:
-        attenuation = np.log(background) - np.log(work)
+        log_work = np.log(work)
+        unclipped = np.log(smooth) - log_work
+        attenuation = np.log(np.maximum(smooth, work)) - log_work
     attenuation[~field] = 0.0
+    unclipped[~field] = 0.0
     values = attenuation[field]
     if values.size == 0:
-        return attenuation, float("nan")
+        return attenuation, float("nan"), unclipped
     # The closing sits on the upper envelope of the noise: shift the background's median to 0.
     centre, sigma = _median_and_sigma(values)
     attenuation[field] -= centre
-    return attenuation, sigma
+    unclipped[field] -= centre
+    return attenuation, sigma, unclipped
 
 
 def _median_and_sigma(values: np.ndarray) -> tuple[float, float]:
@@ -868,14 +897,15 @@ def segment_vessels_detailed(image: Any, parameters: Optional[SegmentationParame
     else:
         area = ndi.binary_erosion(np.ones(raw.shape, bool), iterations=params.border_margin_px, border_value=0) \
             if params.border_margin_px else np.ones(raw.shape, bool)
-    attenuation, sigma = flatten_background(work, area, params)
+    attenuation, sigma, lumen = _flatten_both(work, area, params, black_level=True)
     vesselness = _vesselness(attenuation, params, params.sigmas_px)
     vesselness[~area] = 0.0
     inside = vesselness[area]
     reference = float(np.percentile(inside, params.reference_percentile)) if inside.size else 0.0
     empty = np.zeros(raw.shape, dtype=bool)
     if not (reference > 0 and sigma > 0 and math.isfinite(sigma)):
-        return SegmentationResult(empty, area, attenuation, np.zeros(raw.shape), float(sigma) if inside.size else float("nan"), params)
+        return SegmentationResult(empty, area, attenuation, np.zeros(raw.shape), float(sigma) if inside.size else float("nan"), params,
+                                  lumen)
     normalised = vesselness / reference
     low = (normalised > params.low_threshold) & area
     bridge = np.zeros(raw.shape, dtype=bool)
@@ -910,7 +940,7 @@ def segment_vessels_detailed(image: Any, parameters: Optional[SegmentationParame
         from .densitometry import widen_narrow_vessels
 
         mask = widen_narrow_vessels(mask, local, _centreline(mask), max_radius_px=params.density_radius_px) & area
-    return SegmentationResult(mask, area, attenuation, normalised, float(sigma), params)
+    return SegmentationResult(mask, area, attenuation, normalised, float(sigma), params, lumen)
 
 
 def segment_vessels(image: Any, parameters: Optional[SegmentationParameters] = None, *,

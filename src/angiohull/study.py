@@ -96,8 +96,8 @@ class View:
     image_path : Path or None
         The raw image the mask was segmented from, if any.
     attenuation : ndarray of float64 or None
-        For a view segmented from its image: the flattened attenuation the segmentation computed
-        (:attr:`angiohull.segmentation.SegmentationResult.attenuation`, the mask's shape), on which
+        For a view segmented from its image: the flattened attenuation the segmentation computed,
+        unclipped (:attr:`angiohull.segmentation.SegmentationResult.lumen_attenuation`, the mask's shape), on which
         the quantitative analysis measures lesions (``reconstruct --qca``); None otherwise.
 
     Raises
@@ -529,7 +529,7 @@ def _read_view_mask(entry: _ViewEntry, root: Path, name: str, where: str, header
             f"view {name!r}: {image_path}: the segmentation found no vessel; check the image, or lower "
             "segmentation: {high_threshold: ..., seed_snr: ...} (see angiohull.segmentation.SegmentationParameters)",
         )
-    return mask, frame_used, segmented.attenuation
+    return mask, frame_used, segmented.lumen_attenuation
 
 
 def _same_file(a: Path, b: Path) -> bool:

@@ -282,7 +282,7 @@ def analyse_tree(tree: VesselTree, projections: Sequence[Projection] = (), view_
     settings : QcaSettings
     attenuation : sequence of (rows, cols) arrays, optional
         One flattened attenuation image per projection (the angiogram's ``log(background /
-        image)``, for example :attr:`angiohull.segmentation.SegmentationResult.attenuation`): each
+        image)``, for example :attr:`angiohull.segmentation.SegmentationResult.lumen_attenuation`): each
         lesion's minimal lumen diameter is then measured again on them (:mod:`.attenuation`;
         ``Lesion.mld_source`` says where it was), which a threshold's mask cannot give for
         lumens a few pixels wide. Needs ``projections``.

@@ -5,7 +5,7 @@ pixels wide or less, that cut depends on the blur, the contrast and the noise mo
 lumen (on the QCA benchmark's segmented angiograms a lumen 1.6 px wide comes out 3 px wide), so
 the minimal lumen diameter of a severe stenosis read from masks carries an error no 3D fit of them
 can take out. The attenuation itself carries the lumen: by Beer–Lambert, the flattened attenuation
-``A`` of a segmentation (:attr:`angiohull.segmentation.SegmentationResult.attenuation`) across a
+``A`` of a segmentation (:attr:`angiohull.segmentation.SegmentationResult.lumen_attenuation`) across a
 round lumen of radius ``R`` (px at the lumen's depth) is
 
     A(x) = b0 + b1 x + (mu / f) 2 sqrt(R^2 - (x - c)^2)   (0 outside the lumen), blurred by G(sigma)
