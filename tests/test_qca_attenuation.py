@@ -129,6 +129,25 @@ def test_analyse_tree_measures_the_lesion_on_the_images(scene):
     assert from_images.to_dict()["attenuation_calibrations"][0]["points"] >= 8
 
 
+def test_a_lesion_the_images_show_no_narrowing_at_keeps_the_trees_values(scene):
+    """The tree has its narrowing, the angiograms show a straight vessel 15 % wider than the tree's
+    reference (within the flank check's 20 %): the images measure something other than the lesion
+    (a misplaced branch, another vessel), so its least image diameter, 2.3 mm against a reference of
+    2 mm, is not taken."""
+    arc, points, radius, projections, images, tree = scene
+    fine = np.arange(0.0, 70.0 + 1e-9, 0.05)
+    straight = TubePhantom((Tube(_centreline(fine), np.full(fine.size, 1.15 * RADIUS_MM)),), "straight tube")
+    plain = [ndi.gaussian_filter(MU_PER_MM * vessel_chord_length_mm(straight, p), BLUR_PX) for p in projections]
+    m = image_diameters(tree, np.flatnonzero(np.abs(arc - CENTRE_MM) <= 2.0), projections, plain,
+                        calibrate_views(tree, projections, plain, np.array([points[np.argmin(radius)]])))
+    assert np.nanmin(m.diameter_mm) == pytest.approx(2.3, abs=0.05)  # what the images alone would report
+    from_tree = analyse_tree(tree, projections, settings=_no_maps())
+    kept = analyse_tree(tree, projections, settings=_no_maps(), attenuation=plain)
+    assert len(kept.lesions) == 1 and kept.lesions[0].mld_source == "tree"
+    assert kept.lesions[0].mld_mm == from_tree.lesions[0].mld_mm
+    assert kept.lesions[0].diameter_stenosis_pct == from_tree.lesions[0].diameter_stenosis_pct
+
+
 def test_a_vessel_crossing_the_lesion_in_one_view_leaves_it_to_the_other(scene):
     arc, points, radius, projections, images, tree = scene
     # a second vessel 15 mm nearer the source of view 0, crossing the lesion there: view 0's

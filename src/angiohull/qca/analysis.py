@@ -342,7 +342,8 @@ def _lesions_on_images(tree: VesselTree, branches: list[BranchQca], projections:
                        ) -> tuple[list[BranchQca], tuple[ViewCalibration, ...]]:
     """Every lesion's MLD measured again on the angiograms (:mod:`.attenuation`, step 3): the least
     image diameter of its branch's points within its span, over the views whose image diameters
-    beside the lesion agree with the tree's (step 4)."""
+    beside the lesion agree with the tree's (step 4); a lesion the images show no narrowing at
+    keeps the tree's values."""
     from .attenuation import calibrate_views, image_diameters
 
     every = [les for b in branches for les in b.profile.lesions]
@@ -384,6 +385,9 @@ def _lesions_on_images(tree: VesselTree, branches: list[BranchQca], projections:
             diameter[seen] = np.nanmedian(per_view[:, seen], axis=0)
             k = int(np.argmin(diameter))
             mld = float(diameter[k])
+            if mld >= les.reference_diameter_mm:  # no narrowing on the images: they see something else there
+                measured.append(les)
+                continue
             ratio = mld / les.reference_diameter_mm
             measured.append(replace(les, mld_arc_mm=float(arc[span[k]]),
                                     mld_point_mm=tuple(float(x) for x in branch.points_mm[span[k]]), mld_mm=mld,
