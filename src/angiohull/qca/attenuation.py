@@ -44,8 +44,9 @@ where it crosses a level, reads ``R`` without the threshold's bias and with less
    main vessel as 84 %) the lesion keeps the tree's values. So does a lesion whose least image
    diameter is not below its reference diameter: the images show no narrowing there, so what they
    measure is not the lesion (since 2026-12-06: on one lattice of the benchmark a conus lesion
-   whose reconstructed branch lies 2-3 mm off the vessel read -19.6 % against a true 38.8 %; the
-   rule acts on no other lesion of the benchmark's four lattices or of 60 other trees).
+   whose reconstructed branch lies 2-3 mm off the vessel read -19.6 % against a true 38.8 %; from 3
+   views the rule acts on no other lesion of the benchmark's four lattices or of 60 other trees,
+   from 2 views with the tree method on one lesion on each of three lattices).
 
 "Clear of other vessels": no other point of the tree (of another branch, or of the same branch
 farther along it than the two radii and 1 mm) has a projected disc, widened by
@@ -55,9 +56,12 @@ Measured (QCA benchmark's renders, 3 segmented views, 2026-12-06; docs/qca.md): 
 point, one view at a time (trees 0-19, a least-squares version of the same model), MLD error
 -0.005 ± 0.091 mm, against the densitometric integral (:mod:`angiohull.densitometry`) +0.071 ±
 0.146 mm; calibration ``sigma`` 1.2 px (the renderer's 0.6 px and the segmentation's 1 px
-smoothing: 1.17 px). Lesions of the benchmark's 60 trees (steps 1-4): %DS +0.7 ± 4.3 points and
-MLD -0.004 ± 0.091 mm, where the tree's own diameters (masks) give -1.5 ± 6.7 and +0.040 ± 0.129;
-on 60 other trees +0.3 ± 5.8 against -1.8 ± 7.2, and on lattices 0.3 / 0.6 % coarser 5.9 / 5.3.
+smoothing: 1.17 px). Lesions of the benchmark's 60 trees (steps 1-4, on the segmentation's
+unclipped attenuation, :attr:`~angiohull.segmentation.SegmentationResult.lumen_attenuation`, since
+2026-12-06): %DS -0.3 ± 3.8 points and MLD +0.014 ± 0.079 mm, where the tree's own diameters
+(masks) give -1.5 ± 6.7 and +0.040 ± 0.129; on 60 other trees -0.7 ± 5.0 against -1.8 ± 7.2, and
+on lattices 0.3 % coarser / finer and 0.6 % coarser 5.6 / 5.0 / 4.8 (on the clipped attenuation:
+4.3 on the benchmark's, 5.8 on the 60 others, 5.9 / - / 5.3).
 """
 
 from __future__ import annotations
