@@ -697,8 +697,8 @@ def _run_qca(tree, projections, names, out_dir: Path, progress: _Progress, *, se
         on_images = sum(les.mld_source == "images" for les in result.lesions)
         summary += (f"; {on_images} of {len(result.lesions)} MLDs measured on the angiograms"
                     + ("" if on_images == len(result.lesions) else
-                       " (the others: no view saw the lesion clear of other vessels, or none read the vessel beside "
-                       "it as the tree does)"))
+                       " (the others: no view saw the lesion clear of other vessels, none read the vessel beside "
+                       "it as the tree does, or the images showed no narrowing there)"))
     lines.append(summary)
     lines.append(f"outputs in {final_dir}/: {', '.join(path.name for path in paths.values())}")
     return paths, lines
