@@ -472,14 +472,14 @@ def _flatten(image: np.ndarray, field: np.ndarray, params: SegmentationParameter
              black_level: bool) -> tuple[np.ndarray, float]:
     """:func:`flatten_background`, or without ``black_level`` plain ``log(B / I)`` (the frame score's:
     the frames of one run share one scaling, and their ranking stays what it was)."""
-    attenuation, sigma, _ = _flatten_both(image, field, params, black_level=black_level)
+    attenuation, sigma, _ = _flatten_both(image, field, params, black_level=black_level, keep_unclipped=False)
     return attenuation, sigma
 
 
 def _flatten_both(image: np.ndarray, field: np.ndarray, params: SegmentationParameters, *,
-                  black_level: bool) -> tuple[np.ndarray, float, np.ndarray]:
-    """The clipped attenuation, its noise sigma and the unclipped one (:func:`flatten_background`),
-    both shifted by the clipped one's median over the field."""
+                  black_level: bool, keep_unclipped: bool = True) -> tuple[np.ndarray, float, np.ndarray | None]:
+    """The clipped attenuation, its noise sigma and the unclipped one (:func:`flatten_background`;
+    None without ``keep_unclipped``), both shifted by the clipped one's median over the field."""
     work = _fill_outside(image, field)
     if params.smoothing_px > 0:
         work = ndi.gaussian_filter(work, params.smoothing_px, mode="nearest")
@@ -490,21 +490,23 @@ def _flatten_both(image: np.ndarray, field: np.ndarray, params: SegmentationPara
         zero = dark - BLACK_LEVEL_MARGIN * (middle - dark)
         floor = 1e-3 * max(middle - zero, 1e-12)
         log_work = np.log(np.maximum(work - zero, floor))
-        unclipped = np.log(np.maximum(smooth - zero, floor)) - log_work
+        unclipped = np.log(np.maximum(smooth - zero, floor)) - log_work if keep_unclipped else None
         attenuation = np.log(np.maximum(np.maximum(smooth, work) - zero, floor)) - log_work
     else:
         log_work = np.log(work)
-        unclipped = np.log(smooth) - log_work
+        unclipped = np.log(smooth) - log_work if keep_unclipped else None
         attenuation = np.log(np.maximum(smooth, work)) - log_work
     attenuation[~field] = 0.0
-    unclipped[~field] = 0.0
+    if unclipped is not None:
+        unclipped[~field] = 0.0
     values = attenuation[field]
     if values.size == 0:
         return attenuation, float("nan"), unclipped
     # The closing sits on the upper envelope of the noise: shift the background's median to 0.
     centre, sigma = _median_and_sigma(values)
     attenuation[field] -= centre
-    unclipped[field] -= centre
+    if unclipped is not None:
+        unclipped[field] -= centre
     return attenuation, sigma, unclipped
 
 
