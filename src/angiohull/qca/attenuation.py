@@ -66,6 +66,7 @@ on lattices 0.3 % coarser / finer and 0.6 % coarser 5.6 / 5.0 / 4.8 (on the clip
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -269,21 +270,53 @@ def _centres(settings: AttenuationFitSettings) -> np.ndarray:
     return np.arange(-half, half + 1e-9, step)
 
 
-def _fit_free(y: np.ndarray, q: np.ndarray, radius0_px: np.ndarray, tables: dict[float, _Table],
-              settings: AttenuationFitSettings) -> tuple[np.ndarray, np.ndarray]:
-    """Per profile, the amplitude (``mu / f``) and blur of the best free fit (calibration): over the
-    blurs of ``tables``, centres and radii within half of ``radius0_px`` either way."""
+@dataclass(frozen=True)
+class _CalibrationTemplates:
+    """The free fit's model profiles, which depend on the settings alone: per blur of the grid and
+    per centre offset, every radius's blurred lumen sampled on ``q`` and detrended, with its sum of
+    squares."""
+
+    half_px: int  # every calibration profile's half-length
+    radii: np.ndarray  # (R,) px
+    q: np.ndarray  # (S,) px
+    blurs: tuple[float, ...]
+    shapes: tuple[tuple[np.ndarray, ...], ...]  # [blur][centre]: (R, S)
+    norms: tuple[tuple[np.ndarray, ...], ...]  # [blur][centre]: (R,)
+
+
+@functools.lru_cache(maxsize=2)
+def _calibration_templates(settings: AttenuationFitSettings) -> _CalibrationTemplates:
+    """Built once per settings (about 30 MB with the defaults) instead of once per view."""
+    lo, hi = settings.calibration_radius_px
+    half_px = math.ceil(hi + settings.reach_px)
+    radii = np.arange(0.5 * lo, 1.5 * hi + 1e-9, settings.radius_step_px)
+    q = np.arange(-half_px, half_px + 1e-9, settings.step_px)
     centres = _centres(settings)
-    radii = next(iter(tables.values())).radii
-    yt = _detrended(y, q)  # (P, S)
+    start, stop, step = settings.blur_grid_px
+    blurs, shapes, norms = [], [], []
+    for sigma in np.arange(start, stop + 1e-9, step):
+        table = _Table(radii, float(sigma), half_px + centres.max() + 1.0)
+        gts = tuple(_detrended(table.at(q - c), q) for c in centres)
+        for gt in gts:
+            gt.flags.writeable = False
+        blurs.append(float(sigma))
+        shapes.append(gts)
+        norms.append(tuple((gt * gt).sum(axis=1) for gt in gts))
+    return _CalibrationTemplates(half_px, radii, q, tuple(blurs), tuple(shapes), tuple(norms))
+
+
+def _fit_free(y: np.ndarray, radius0_px: np.ndarray, templates: _CalibrationTemplates
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Per profile, the amplitude (``mu / f``) and blur of the best free fit (calibration): over the
+    blurs and centres of ``templates``, radii within half of ``radius0_px`` either way."""
+    radii = templates.radii
+    yt = _detrended(y, templates.q)  # (P, S)
     best = np.full(len(y), np.inf)
     amp = np.full(len(y), np.nan)
     blur = np.full(len(y), np.nan)
     window = (radii[None, :] >= 0.5 * radius0_px[:, None]) & (radii[None, :] <= 1.5 * radius0_px[:, None])  # (P, R)
-    for sigma, table in tables.items():
-        for c in centres:
-            gt = _detrended(table.at(q - c), q)  # (R, S)
-            gg = (gt * gt).sum(axis=1)  # (R,)
+    for sigma, shapes, norms in zip(templates.blurs, templates.shapes, templates.norms):
+        for gt, gg in zip(shapes, norms):  # (R, S), (R,)
             yg = yt @ gt.T  # (P, R)
             a = yg / np.maximum(gg, 1e-12)[None, :]
             ss = (yt * yt).sum(axis=1)[:, None] - yg * a
@@ -346,20 +379,15 @@ def calibrate_views(tree: VesselTree, projections: Sequence[Projection], attenua
         radius_px = t.radius * g.px_per_mm
         candidates = np.flatnonzero(ok & (radius_px >= lo) & (radius_px <= hi)
                                     & (g.foreshortening >= settings.calibration_foreshortening))
-        half_px = math.ceil(hi + settings.reach_px)  # one profile length for every calibration point
-        candidates = candidates[_clear(t, g, candidates, np.full(len(candidates), float(half_px)),
+        templates = _calibration_templates(settings)  # one profile length for every calibration point
+        candidates = candidates[_clear(t, g, candidates, np.full(len(candidates), float(templates.half_px)),
                                        settings.overlap_margin_px)]
         if len(candidates) > settings.calibration_points:
             candidates = candidates[np.linspace(0, len(candidates) - 1, settings.calibration_points).round().astype(int)]
         if len(candidates) < settings.min_calibration:
             out.append(ViewCalibration(float("nan"), float("nan"), int(len(candidates))))
             continue
-        radii = np.arange(0.5 * lo, 1.5 * hi + 1e-9, settings.radius_step_px)
-        start, stop, step = settings.blur_grid_px
-        tables = {float(sigma): _Table(radii, float(sigma), half_px + _centres(settings).max() + 1.0)
-                  for sigma in np.arange(start, stop + 1e-9, step)}
-        q = np.arange(-half_px, half_px + 1e-9, settings.step_px)
-        amp, blur = _fit_free(_profiles(image, g, candidates, q), q, radius_px[candidates], tables, settings)
+        amp, blur = _fit_free(_profiles(image, g, candidates, templates.q), radius_px[candidates], templates)
         amp = amp * g.foreshortening[candidates]
         good = np.isfinite(amp) & (amp > 0)
         if good.sum() < settings.min_calibration:
