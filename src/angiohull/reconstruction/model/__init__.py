@@ -675,60 +675,14 @@ def redundant_branches(tree: VesselTree, projections: Sequence[Projection], view
     return [np.flatnonzero((cover[:, other] >= share) & (cover[:, view] < needed_share)) for view, other in view_pairs]
 
 
-def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice, *,
-               support_points_mm: np.ndarray | None = None, initial_points_mm: np.ndarray | None = None,
-               settings: ModelSettings = MODEL_SETTINGS,
-               progress: Callable[[str], None] | None = None) -> tuple[np.ndarray, VesselTree, ModelBuild]:
-    """Reconstruct with the ``tree`` method (module notes).
-
-    Parameters
-    ----------
-    projections, masks : sequences
-        Two or more views (masks boolean, shapes the projections' image shapes).
-    lattice : Lattice
-        The cube of interest whose points make the lumen points.
-    support_points_mm : (S, 3) array, optional
-        The visual hull's points on ``lattice``: pieces of the matched tubes that lie apart are
-        joined along the shortest path through it (as the refined preset's tree does).
-    initial_points_mm : (N, 3) array, optional
-        The volume whose tree is fitted, instead of the correspondences' tubes (with three views
-        or more :func:`angiohull.reconstruction.reconstruct` passes the refined hull: the hull of
-        three views is no longer ambiguous, and its skeleton is the better start).
-    settings : ModelSettings
-    progress : callable, optional
-        Called with a line per stage.
-
-    Returns
-    -------
-    lumen_points_mm : (N, 3) array
-        Lattice points inside the fitted tubes.
-    tree : VesselTree
-    build : ModelBuild
-
-    Raises
-    ------
-    ReconstructionError
-        With fewer than two views, or when no correspondence is found.
-    """
-    if len(projections) < 2:
-        raise ReconstructionError(f"the tree method needs two views or more, got {len(projections)}")
-    say = progress or (lambda _text: None)
-    timings: dict[str, float] = {}
-    masks = [np.asarray(m, dtype=bool) for m in masks]
-    own = nearest = None
-    if initial_points_mm is None:
-        initial, pairs, shares, skeleton_pixels, own, nearest, views = _correspondence_volume(
-            projections, masks, lattice, settings, say, timings)
-    else:
-        initial, pairs, shares, skeleton_pixels = np.asarray(initial_points_mm, dtype=float), (), (), ()
-    if len(initial) < 2:
-        raise ReconstructionError("the tree method's volume holds fewer than two lattice points; use a finer lattice")
-
-    start = time.perf_counter()
-    bridge = None  # the support hull's graphs, built once for every rebuild
-    if support_points_mm is not None and len(support_points_mm):
-        bridge = SupportBridge(np.asarray(support_points_mm, dtype=np.float64), lattice, settings.tree.max_bridge_mm,
-                               views=(projections, masks))
+def _tree_from_volume(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice,
+                      initial: np.ndarray, own: list[np.ndarray] | None, nearest: list[np.ndarray] | None,
+                      views: list[ViewData] | None, pairs: Sequence[tuple[int, int]], bridge: SupportBridge | None,
+                      settings: ModelSettings) -> tuple[VesselTree, TreeBuild, dict[str, int]]:
+    """Step 4 (module notes): the tree of ``initial``'s volume, fitted and pruned, its stretches and
+    unexplained pixels handled; with the counts of what each rule did. ``own`` (each view's own
+    matching's 3D point per skeleton pixel), ``nearest`` and ``views`` are None when the volume is
+    not the correspondences' tubes."""
 
     def fitted_and_pruned(volume: np.ndarray) -> tuple[VesselTree, TreeBuild, int, int, int]:
         tree_settings = settings.tree
@@ -823,7 +777,71 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         tree, tree_build = refit_tree(tree, projections, masks, build=tree_build, passes=settings.tree.fit_passes - 1,
                                       settings=settings.tree)
         tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
+    counts = dict(pruned=pruned, unreproduced=unreproduced, restored=restored, stretch_points=stretch_points,
+                  inner_removed=inner_removed, rebuilds=rebuilds, rematched=rematched, replaced=replaced)
+    return tree, tree_build, counts
+
+
+def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice, *,
+               support_points_mm: np.ndarray | None = None, initial_points_mm: np.ndarray | None = None,
+               settings: ModelSettings = MODEL_SETTINGS,
+               progress: Callable[[str], None] | None = None) -> tuple[np.ndarray, VesselTree, ModelBuild]:
+    """Reconstruct with the ``tree`` method (module notes).
+
+    Parameters
+    ----------
+    projections, masks : sequences
+        Two or more views (masks boolean, shapes the projections' image shapes).
+    lattice : Lattice
+        The cube of interest whose points make the lumen points.
+    support_points_mm : (S, 3) array, optional
+        The visual hull's points on ``lattice``: pieces of the matched tubes that lie apart are
+        joined along the shortest path through it (as the refined preset's tree does).
+    initial_points_mm : (N, 3) array, optional
+        The volume whose tree is fitted, instead of the correspondences' tubes (with three views
+        or more :func:`angiohull.reconstruction.reconstruct` passes the refined hull: the hull of
+        three views is no longer ambiguous, and its skeleton is the better start).
+    settings : ModelSettings
+    progress : callable, optional
+        Called with a line per stage.
+
+    Returns
+    -------
+    lumen_points_mm : (N, 3) array
+        Lattice points inside the fitted tubes.
+    tree : VesselTree
+    build : ModelBuild
+
+    Raises
+    ------
+    ReconstructionError
+        With fewer than two views, or when no correspondence is found.
+    """
+    if len(projections) < 2:
+        raise ReconstructionError(f"the tree method needs two views or more, got {len(projections)}")
+    say = progress or (lambda _text: None)
+    timings: dict[str, float] = {}
+    masks = [np.asarray(m, dtype=bool) for m in masks]
+    own = nearest = views = None
+    if initial_points_mm is None:
+        initial, pairs, shares, skeleton_pixels, own, nearest, views = _correspondence_volume(
+            projections, masks, lattice, settings, say, timings)
+    else:
+        initial, pairs, shares, skeleton_pixels = np.asarray(initial_points_mm, dtype=float), (), (), ()
+    if len(initial) < 2:
+        raise ReconstructionError("the tree method's volume holds fewer than two lattice points; use a finer lattice")
+
+    start = time.perf_counter()
+    bridge = None  # the support hull's graphs, built once for every rebuild
+    if support_points_mm is not None and len(support_points_mm):
+        bridge = SupportBridge(np.asarray(support_points_mm, dtype=np.float64), lattice, settings.tree.max_bridge_mm,
+                               views=(projections, masks))
+    tree, tree_build, counts = _tree_from_volume(projections, masks, lattice, initial, own, nearest, views, pairs,
+                                                 bridge, settings)
     timings["tree"] = time.perf_counter() - start
+    pruned, unreproduced, restored = counts["pruned"], counts["unreproduced"], counts["restored"]
+    stretch_points, inner_removed, rebuilds = counts["stretch_points"], counts["inner_removed"], counts["rebuilds"]
+    rematched, replaced = counts["rematched"], counts["replaced"]
     say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed, "
         f"{unreproduced} that the views' own matchings do not reproduce, {restored} of these put back, "
         f"{stretch_points} points of stretches they contradict, {inner_removed} branches that carry others, "
