@@ -891,7 +891,14 @@ def test_the_report_of_a_tree_reconstruction_names_its_pairs_prunings_and_stages
     assert isinstance(block["unexplained_pixels_matched_again"], int) and block["unexplained_pixels_matched_again"] >= 0
     assert isinstance(block["redundant_branches_replaced"], int) and block["redundant_branches_replaced"] >= 0
     assert block["rebuilds"] in range(MODEL_SETTINGS.stretch_rounds + MODEL_SETTINGS.rematch_rounds + 1)
-    assert set(block["timings_s"]) >= {"centerlines_2d", "correspondence", "tubes", "tree", "lumen"}
+    assert set(block["timings_s"]) >= {"centerlines_2d", "correspondence", "tubes", "tree", "agreement", "lumen"}
+    # two views: a tree per claim cost, the one whose tubes agree best with the masks kept
+    matchings = block["matchings"]
+    assert matchings["claim_costs"] == [MODEL_SETTINGS.match.claim_cost, *MODEL_SETTINGS.alternative_claim_costs]
+    assert len(matchings["mask_agreement_dice"]) == len(matchings["claim_costs"])
+    assert all(0.9 < d <= 1.0 for d in matchings["mask_agreement_dice"])
+    kept = matchings["claim_costs"].index(matchings["kept_claim_cost"])
+    assert matchings["mask_agreement_dice"][kept] == max(matchings["mask_agreement_dice"])
 
 
 def test_window_medians_are_numpys_medians_of_every_window():

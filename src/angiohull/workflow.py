@@ -381,6 +381,12 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
             "rebuilds": int(build.rebuilds),
             "timings_s": {k: float(v) for k, v in build.timings_s.items()},
         }
+        if build.claim_costs:  # two views: a tree per matching, the one agreeing best with the masks kept
+            report["tree_method"]["matchings"] = {
+                "claim_costs": [float(c) for c in build.claim_costs],
+                "mask_agreement_dice": [float(a) for a in build.mask_agreement],
+                "kept_claim_cost": float(build.kept_claim_cost),
+            }
     if scores is not None:
         report["scores"] = scores
     return json_safe(report)

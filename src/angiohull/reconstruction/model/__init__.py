@@ -64,6 +64,16 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    build instead moved the rounds' choices more than it gained, docs/tree-method.md), where a
    view that cannot measure a point keeps its disc inside the run it found
    (``TreeSettings.bound_unmeasured``).
+   **With two views, one tree per matching** (``alternative_claim_costs``): steps 2-4 run again with
+   each alternative claim cost (the first round of matchings, which no claim enters, shared), and of
+   the final trees the one whose tubes' silhouettes agree best with the masks (mean Dice over the
+   views, :mod:`.agreement`) is kept; a matching that gives the same volume and own matchings as an
+   earlier one is not built again. A wrong pairing (a vessel of one view with the wrong vessel of
+   the other) is consistent with both silhouettes only until its tree has been pruned and fitted:
+   then it leaves mask pixels to nothing or draws tubes outside the masks, and the larger claim
+   cost, under which the reverse matching's disagreement weighs more, often pairs that vessel
+   right. Judging the first trees instead of the final ones kept little of the gain
+   (docs/tree-method.md).
 5. **Lumen points**: the lattice points inside the fitted tree's tubes.
 
 Arrays and projections in, points and a tree out; nothing here reads files.
@@ -85,13 +95,14 @@ from ...tree import Branch, VesselTree
 from ..cube import Lattice
 from ..vessel_tree import TREE_SETTINGS, SupportBridge, TreeBuild, TreeSettings, hull_tree, refit_tree
 from .graph2d import CenterlineGraph2D, centerline_graph
+from .agreement import mask_agreement, tube_silhouette
 from .matching import MATCH_SETTINGS, MatchSettings, ViewData, anchored_match, mask_core, match_pixels
 from .tubes import lattice_points_in_tubes
 
 __all__ = ["ModelSettings", "MODEL_SETTINGS", "ModelBuild", "model_tree", "centerline_graph", "CenterlineGraph2D",
            "MatchSettings", "lattice_points_in_tubes", "explained_shares", "prune_explained_branches",
            "reproduced_points", "prune_unreproduced_branches", "unreproduced_inner_branches", "covered_points",
-           "contradicted_stretches", "restore_uncovered_branches"]
+           "contradicted_stretches", "restore_uncovered_branches", "mask_agreement", "tube_silhouette"]
 
 
 @dataclass(frozen=True)
@@ -119,6 +130,8 @@ class ModelSettings:
     rematch_min_pixels: int = 5  # ... while at least this many of a view's join the tree, each time built again
     rematch_redundant_share: float = 0.9  # ... also those only branches the other view finds redundant explain (notes):
     rematch_replace_share: float = 0.5  # ... such a branch leaves the rebuild when this share of its freed pixels join
+    alternative_claim_costs: tuple[float, ...] = (3.0,)  # two views: the matchings again with each, a tree each, and
+    # the tree whose tubes agree best with the masks kept (module notes)
 
 
 MODEL_SETTINGS = ModelSettings()
@@ -141,6 +154,9 @@ class ModelBuild:
     restored: int = 0  # pruned branches put back because what covered them went too
     rematched_pixels: int = 0  # skeleton pixels nothing explained, matched again anchored to the tree (tree built again)
     replaced_branches: int = 0  # branches redundant in one view whose pixels in the other were matched again elsewhere
+    claim_costs: tuple[float, ...] = ()  # two views: the matchings' claim costs, one tree each (module notes) ...
+    mask_agreement: tuple[float, ...] = ()  # ... each tree's mean Dice with the masks (the same tree again: its own)
+    kept_claim_cost: float | None = None  # ... and the claim cost of the tree kept (the most agreeing; None: one tree)
 
 
 def _viewing_direction(projection: Projection) -> np.ndarray:
@@ -564,11 +580,23 @@ def tree_lumen_points(tree: VesselTree, lattice: Lattice, margin_mm: float = 0.0
     return lattice_points_in_tubes(*_tube_segments(tree), lattice, margin_mm=margin_mm)
 
 
-def _correspondence_volume(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice,
-                           settings: ModelSettings, say: Callable[[str], None], timings: dict[str, float]):
-    """Steps 1-3: the lattice points of the matched tubes, the pairs matched, the share of each
-    pair's pixels matched, the skeleton pixels per view, and per view its own matching's 3D point
-    per skeleton pixel (nan where unmatched) with its map of the nearest skeleton pixel."""
+@dataclass
+class _Correspondence:
+    """One matching's volume (step 3) and what judges its tree: per view its own matching's 3D
+    point per skeleton pixel (nan where unmatched)."""
+
+    claim_cost: float
+    initial: np.ndarray
+    shares: tuple[float, ...]
+    own: list[np.ndarray]
+
+
+def _correspondence_volumes(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice,
+                            settings: ModelSettings, claim_costs: Sequence[float], say: Callable[[str], None],
+                            timings: dict[str, float]):
+    """Steps 1-3: the views' data, the pairs matched, the skeleton pixels per view, each view's map
+    of its nearest skeleton pixel, and per claim cost of ``claim_costs`` a :class:`_Correspondence`
+    (the first round of matchings, which no claim enters, is shared)."""
     start = time.perf_counter()
     views = [_view_data(p, m, settings.match.core_fraction) for p, m in zip(projections, masks)]
     timings["centerlines_2d"] = time.perf_counter() - start
@@ -576,34 +604,42 @@ def _correspondence_volume(projections: Sequence[Projection], masks: Sequence[np
 
     start = time.perf_counter()
     pairs = _partners(projections)
-    results, caches = {}, {pair: {} for pair in pairs}
-    for rounds in range(1 + settings.claim_rounds):
-        previous, results = results, {}
+    caches = {pair: {} for pair in pairs}  # the candidates and transitions: no claim cost enters them
+    others = {(a, b): [views[k] for k in range(len(views)) if k not in (a, b)] for a, b in pairs}
+    first = {(a, b): match_pixels(views[a], views[b], others[(a, b)], settings.match, None, caches[(a, b)])
+             for a, b in pairs}
+    out, tubes_s = [], 0.0
+    for claim_cost in claim_costs:
+        match = replace(settings.match, claim_cost=claim_cost)
+        results = first
+        for _ in range(settings.claim_rounds):
+            previous, results = results, {}
+            for a, b in pairs:
+                # B's 3D point per skeleton pixel, from B's own matching into A
+                claims = previous[(b, a)][0] if (b, a) in previous else None
+                results[(a, b)] = match_pixels(views[a], views[b], others[(a, b)], match, claims, caches[(a, b)])
+        tubes, shares = [], []
         for a, b in pairs:
-            others = [views[k] for k in range(len(views)) if k not in (a, b)]
-            # from the second round: B's 3D point per skeleton pixel, from B's own matching into A
-            claims = previous[(b, a)][0] if (b, a) in previous else None
-            results[(a, b)] = match_pixels(views[a], views[b], others, settings.match, claims, caches[(a, b)])
-    tubes, shares = [], []
-    for a, b in pairs:
-        points, radii, parent = results[(a, b)]
-        shares.append(float(np.isfinite(radii).mean()) if len(radii) else 0.0)
-        tubes.append(_matched_tubes(points, radii, parent, settings.max_segment_mm))
-    timings["correspondence"] = time.perf_counter() - start
-    say("correspondence: " + ", ".join(f"view {a} -> {b}: {s:.0%} matched" for (a, b), s in zip(pairs, shares)))
-
-    start = time.perf_counter()
-    a, b, r0, r1 = (np.concatenate(x) for x in zip(*tubes))
-    if len(a) == 0:
-        raise ReconstructionError("the tree method found no correspondence between the views' centerlines; "
-                                  "check the calibration and that the masks show the same vessels")
-    initial = lattice_points_in_tubes(a, b, r0, r1, lattice)
-    timings["tubes"] = time.perf_counter() - start
-    own = [np.full((v.graph.n_pixels, 3), np.nan) for v in views]
-    for a, b in pairs:
-        own[a] = results[(a, b)][0]
-    return (initial, tuple(pairs), tuple(shares), tuple(v.graph.n_pixels for v in views), own,
-            [v.nearest_skeleton for v in views], views)
+            points, radii, parent = results[(a, b)]
+            shares.append(float(np.isfinite(radii).mean()) if len(radii) else 0.0)
+            tubes.append(_matched_tubes(points, radii, parent, settings.max_segment_mm))
+        say(f"correspondence (claim cost {claim_cost:g}): "
+            + ", ".join(f"view {a} -> {b}: {s:.0%} matched" for (a, b), s in zip(pairs, shares)))
+        starts, ends, r0, r1 = (np.concatenate(x) for x in zip(*tubes))
+        if len(starts) == 0:
+            raise ReconstructionError("the tree method found no correspondence between the views' centerlines; "
+                                      "check the calibration and that the masks show the same vessels")
+        own = [np.full((v.graph.n_pixels, 3), np.nan) for v in views]
+        for a, b in pairs:
+            own[a] = results[(a, b)][0]
+        tubes_start = time.perf_counter()
+        initial = lattice_points_in_tubes(starts, ends, r0, r1, lattice)
+        tubes_s += time.perf_counter() - tubes_start
+        out.append(_Correspondence(claim_cost, initial, tuple(shares), own))
+    timings["correspondence"] = time.perf_counter() - start - tubes_s
+    timings["tubes"] = tubes_s
+    return (tuple(pairs), tuple(v.graph.n_pixels for v in views), [v.nearest_skeleton for v in views], views,
+            out)
 
 
 def _matched_tubes(points: np.ndarray, radii: np.ndarray, parent: np.ndarray, max_segment_mm: float,
@@ -822,13 +858,17 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     say = progress or (lambda _text: None)
     timings: dict[str, float] = {}
     masks = [np.asarray(m, dtype=bool) for m in masks]
-    own = nearest = views = None
-    if initial_points_mm is None:
-        initial, pairs, shares, skeleton_pixels, own, nearest, views = _correspondence_volume(
-            projections, masks, lattice, settings, say, timings)
+    nearest = views = None
+    if initial_points_mm is None:  # with two views, one matching per claim cost, and the best tree kept (notes)
+        claim_costs = (settings.match.claim_cost,) + (settings.alternative_claim_costs if len(projections) == 2
+                                                      else ())
+        pairs, skeleton_pixels, nearest, views, correspondences = _correspondence_volumes(
+            projections, masks, lattice, settings, claim_costs, say, timings)
     else:
-        initial, pairs, shares, skeleton_pixels = np.asarray(initial_points_mm, dtype=float), (), (), ()
-    if len(initial) < 2:
+        pairs, skeleton_pixels = (), ()
+        correspondences = [_Correspondence(settings.match.claim_cost, np.asarray(initial_points_mm, dtype=float),
+                                           (), None)]
+    if len(correspondences[0].initial) < 2:
         raise ReconstructionError("the tree method's volume holds fewer than two lattice points; use a finer lattice")
 
     start = time.perf_counter()
@@ -836,23 +876,49 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     if support_points_mm is not None and len(support_points_mm):
         bridge = SupportBridge(np.asarray(support_points_mm, dtype=np.float64), lattice, settings.tree.max_bridge_mm,
                                views=(projections, masks))
-    tree, tree_build, counts = _tree_from_volume(projections, masks, lattice, initial, own, nearest, views, pairs,
-                                                 bridge, settings)
-    timings["tree"] = time.perf_counter() - start
-    pruned, unreproduced, restored = counts["pruned"], counts["unreproduced"], counts["restored"]
-    stretch_points, inner_removed, rebuilds = counts["stretch_points"], counts["inner_removed"], counts["rebuilds"]
-    rematched, replaced = counts["rematched"], counts["replaced"]
-    say(f"tree: {tree.n_branches} branches, fitted to the views ({pruned} explained by the others removed, "
-        f"{unreproduced} that the views' own matchings do not reproduce, {restored} of these put back, "
-        f"{stretch_points} points of stretches they contradict, {inner_removed} branches that carry others, "
-        f"{rematched} unexplained pixels matched again, replacing {replaced} branches; {rebuilds} rebuilds)")
+    timings["tree"] = timings["agreement"] = 0.0
+    agreement, built, best = [], [], 0
+    for k, corr in enumerate(correspondences):
+        same = next((j for j in range(k) if np.array_equal(corr.initial, correspondences[j].initial)
+                     and all(np.array_equal(x, y, equal_nan=True) for x, y in zip(corr.own, correspondences[j].own))),
+                    None)
+        if same is not None or (k and len(corr.initial) < 2):  # the same tree again, or none
+            agreement.append(agreement[same] if same is not None else -np.inf)
+            built.append(None)
+            continue
+        start = time.perf_counter()
+        built.append(_tree_from_volume(projections, masks, lattice, corr.initial, corr.own, nearest, views, pairs,
+                                       bridge, replace(settings, match=replace(settings.match,
+                                                                               claim_cost=corr.claim_cost))))
+        timings["tree"] += time.perf_counter() - start
+        if len(correspondences) > 1:
+            start = time.perf_counter()
+            agreement.append(float(mask_agreement(built[-1][0], projections, masks).mean()))
+            timings["agreement"] += time.perf_counter() - start
+            if agreement[-1] > agreement[best]:
+                best = k
+    if len(correspondences) > 1:
+        say(f"trees' agreement with the masks (mean Dice over the views): "
+            + ", ".join(f"claim cost {c.claim_cost:g}: {a:.4f}" for c, a in zip(correspondences, agreement))
+            + f"; kept claim cost {correspondences[best].claim_cost:g}")
+    else:
+        del timings["agreement"]
+    tree, tree_build, counts = built[best]
+    say(f"tree: {tree.n_branches} branches, fitted to the views ({counts['pruned']} explained by the others "
+        f"removed, {counts['unreproduced']} that the views' own matchings do not reproduce, {counts['restored']} "
+        f"of these put back, {counts['stretch_points']} points of stretches they contradict, "
+        f"{counts['inner_removed']} branches that carry others, {counts['rematched']} unexplained pixels matched "
+        f"again, replacing {counts['replaced']} branches; {counts['rebuilds']} rebuilds)")
 
     start = time.perf_counter()
     lumen = tree_lumen_points(tree, lattice, settings.lumen_margin_steps * lattice.spacing_mm)
     timings["lumen"] = time.perf_counter() - start
-    build = ModelBuild(pairs=pairs, matched_share=shares, skeleton_pixels=skeleton_pixels, explained_removed=pruned,
-                       unreproduced_removed=unreproduced, stretch_points_removed=stretch_points,
-                       inner_removed=inner_removed, rebuilds=rebuilds, restored=restored, rematched_pixels=rematched,
-                       replaced_branches=replaced, tree_build=tree_build,
-                       timings_s=timings)
+    build = ModelBuild(pairs=pairs, matched_share=correspondences[best].shares, skeleton_pixels=skeleton_pixels,
+                       explained_removed=counts["pruned"], unreproduced_removed=counts["unreproduced"],
+                       stretch_points_removed=counts["stretch_points"], inner_removed=counts["inner_removed"],
+                       rebuilds=counts["rebuilds"], restored=counts["restored"], rematched_pixels=counts["rematched"],
+                       replaced_branches=counts["replaced"], tree_build=tree_build, timings_s=timings,
+                       claim_costs=tuple(c.claim_cost for c in correspondences) if len(correspondences) > 1 else (),
+                       mask_agreement=tuple(agreement),
+                       kept_claim_cost=correspondences[best].claim_cost if len(correspondences) > 1 else None)
     return lumen, tree, build

@@ -1,0 +1,77 @@
+"""How well a vessel tree explains the views' masks: its tubes' silhouette drawn into each view and
+compared with the mask (Dice coefficient).
+
+With two views every matching of their centerlines is consistent with both silhouettes in
+principle, but a wrong one (a vessel of one view paired with the wrong vessel of the other) leaves
+parts of the masks to phantoms or to nothing once its tree has been fitted and pruned; the ``tree``
+method builds a tree from each of its alternative matchings and keeps the one that agrees best
+(module notes of :mod:`angiohull.reconstruction.model`).
+
+The silhouette is the union of the discs of the tree's centerline samples (every ``step_mm`` of
+arc length), each of its radius scaled by the projection's focal length over its depth, drawn on
+the pixel centres (integer ``(u, v)``).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ...geometry import Projection
+from ...tree import VesselTree
+
+__all__ = ["tube_silhouette", "mask_agreement"]
+
+
+def _samples(tree: VesselTree, step_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    points, radii = [], []
+    for branch in tree.branches:
+        b = branch.resampled(step_mm) if branch.length_mm > step_mm else branch
+        points.append(b.points_mm)
+        radii.append(b.radius_mm)
+    if not points:
+        return np.zeros((0, 3)), np.zeros(0)
+    return np.concatenate(points), np.concatenate(radii)
+
+
+def tube_silhouette(tree: VesselTree, projection: Projection, *, step_mm: float = 0.25) -> np.ndarray:
+    """The pixels of ``projection``'s image (its ``image_shape``) that the tree's tubes cover:
+    within the projected radius of a centerline sample taken every ``step_mm`` (> 0) of arc
+    length; boolean, shape ``projection.image_shape``."""
+    if not step_mm > 0:
+        raise ValueError(f"step_mm must be > 0, got {step_mm}")
+    shape = tuple(int(n) for n in projection.image_shape)
+    image = np.zeros(shape, dtype=bool)
+    points, radii = _samples(tree, step_mm)
+    if len(points) == 0:
+        return image
+    front = projection.in_front(points)
+    points, radii = points[front], radii[front]
+    uv = projection.project(points)
+    rho = radii * max(projection.focal_lengths_px) / projection.depth_mm(points)
+    reach = np.ceil(rho).astype(np.int64)
+    for r in np.unique(reach):  # one offset grid per reach: (samples, offsets) at once
+        at = np.flatnonzero(reach == r)
+        du, dv = np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1))
+        du, dv = du.ravel(), dv.ravel()
+        cu = np.rint(uv[at, 0]).astype(np.int64)[:, None] + du[None, :]
+        cv = np.rint(uv[at, 1]).astype(np.int64)[:, None] + dv[None, :]
+        inside = (cu - uv[at, 0][:, None]) ** 2 + (cv - uv[at, 1][:, None]) ** 2 <= rho[at][:, None] ** 2
+        inside &= (cu >= 0) & (cv >= 0) & (cu < shape[1]) & (cv < shape[0])
+        image[cv[inside], cu[inside]] = True
+    return image
+
+
+def mask_agreement(tree: VesselTree, projections: Sequence[Projection], masks: Sequence[np.ndarray], *,
+                   step_mm: float = 0.25) -> np.ndarray:
+    """Per view, the Dice coefficient between its mask and the tree's :func:`tube_silhouette`
+    (1 where both are empty)."""
+    out = np.ones(len(projections))
+    for k, (projection, mask) in enumerate(zip(projections, masks)):
+        mask = np.asarray(mask, dtype=bool)
+        drawn = tube_silhouette(tree, projection, step_mm=step_mm)
+        total = int(mask.sum()) + int(drawn.sum())
+        if total:
+            out[k] = 2.0 * int((mask & drawn).sum()) / total
+    return out
