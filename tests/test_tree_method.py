@@ -1014,3 +1014,41 @@ def test_of_two_views_the_tree_kept_is_the_one_that_agrees_best_with_the_masks(m
     chosen, single = tree_scores(result.tree, truth), tree_scores(alone.tree, truth)
     # measured 0.75 mm against 2.49 mm (mask agreement 0.980 against 0.970)
     assert chosen.centerline_mean_mm < 1.0 < 2.0 < single.centerline_mean_mm
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="os.fork is not available on this platform")
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # Python 3.12+: a fork under pytest-xdist's threads
+def test_a_forked_build_returns_its_result_and_a_failed_or_abandoned_one_nothing():
+    import time
+
+    from angiohull.reconstruction.model import _ForkedBuilds
+
+    assert _ForkedBuilds(lambda: {"tree": np.arange(100_000.0)}).result()["tree"].sum() == 99_999 * 100_000 / 2
+
+    def failing():
+        raise RuntimeError("a build that fails in the child")
+
+    assert _ForkedBuilds(failing).result() is None  # the caller then builds it itself
+    start = time.perf_counter()
+    slow = _ForkedBuilds(lambda: time.sleep(30))
+    slow.abandon()  # killed and reaped at once
+    assert time.perf_counter() - start < 10
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="os.fork is not available on this platform")
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # Python 3.12+: a fork under pytest-xdist's threads
+def test_the_alternative_tree_built_in_a_forked_process_is_the_one_built_here(monkeypatch):
+    from angiohull.reconstruction.model import _can_fork
+
+    _, projections, masks = _generated("rca", 7000)
+    here = reconstruct(projections, masks, method="tree", centerlines=False)  # no fork where threads run (xdist)
+    monkeypatch.setitem(model.model_tree.__kwdefaults__, "settings", replace(MODEL_SETTINGS, fork_alternatives=False))
+    sequential = reconstruct(projections, masks, method="tree", centerlines=False)
+    monkeypatch.setattr(model, "_can_fork", lambda: True)
+    monkeypatch.setitem(model.model_tree.__kwdefaults__, "settings", MODEL_SETTINGS)
+    forked = reconstruct(projections, masks, method="tree", centerlines=False)
+    for result in (here, forked):
+        np.testing.assert_array_equal(result.vessel_points_mm, sequential.vessel_points_mm)
+        np.testing.assert_array_equal(result.tree.points()[0], sequential.tree.points()[0])
+        assert result.model_build.mask_agreement == sequential.model_build.mask_agreement
+    assert isinstance(_can_fork(), bool)

@@ -73,7 +73,12 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    then it leaves mask pixels to nothing or draws tubes outside the masks, and the larger claim
    cost, under which the reverse matching's disagreement weighs more, often pairs that vessel
    right. Judging the first trees instead of the final ones kept little of the gain
-   (docs/tree-method.md).
+   (docs/tree-method.md). On Linux with two CPUs or more and no other Python thread
+   (``fork_alternatives``, :func:`_can_fork`), the alternative matchings' trees are built in a
+   forked child while this process builds the first (the same trees: the child runs the same code
+   on the same arrays and sends its trees back pickled; if it fails they are built here). No
+   Python thread is running, so none holds a lock the child would need; the BLAS library's own
+   threads are fork-safe (multiprocessing's fork start method relies on it too).
 5. **Lumen points**: the lattice points inside the fitted tree's tubes.
 
 Arrays and projections in, points and a tree out; nothing here reads files.
@@ -81,6 +86,8 @@ Arrays and projections in, points and a tree out; nothing here reads files.
 
 from __future__ import annotations
 
+import os
+import pickle
 import time
 from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
@@ -132,6 +139,7 @@ class ModelSettings:
     rematch_replace_share: float = 0.5  # ... such a branch leaves the rebuild when this share of its freed pixels join
     alternative_claim_costs: tuple[float, ...] = (3.0,)  # two views: the matchings again with each, a tree each, and
     # the tree whose tubes agree best with the masks kept (module notes)
+    fork_alternatives: bool = True  # ... their trees built in a forked process meanwhile, where that is safe (notes)
 
 
 MODEL_SETTINGS = ModelSettings()
@@ -818,6 +826,65 @@ def _tree_from_volume(projections: Sequence[Projection], masks: Sequence[np.ndar
     return tree, tree_build, counts
 
 
+def _can_fork() -> bool:
+    """Whether a process may be forked to build the alternative matchings' trees at the same time
+    as the first one: Linux (where fork is the process model numpy and scipy are used under), two
+    CPUs or more available to this process, and no other Python thread (a fork copies only the
+    calling thread; a lock another thread held would stay held in the child)."""
+    import sys
+    import threading
+
+    if not sys.platform.startswith("linux") or not hasattr(os, "fork") or threading.active_count() != 1:
+        return False
+    try:
+        return len(os.sched_getaffinity(0)) >= 2
+    except (AttributeError, OSError):
+        return False
+
+
+class _ForkedBuilds:
+    """``build()`` run in a forked child, its pickled result read back by :meth:`result` (None if
+    the child failed: the caller builds it itself). The child leaves by ``os._exit``: no buffered
+    output of the parent's is written twice, no exit handler runs."""
+
+    def __init__(self, build: Callable[[], object]):
+        import warnings
+
+        self._read, write = os.pipe()
+        with warnings.catch_warnings():  # Python 3.12+ warns of any thread, BLAS's too (fork-safe: module notes)
+            warnings.simplefilter("ignore", DeprecationWarning)
+            self._pid = os.fork()
+        if self._pid == 0:  # the child
+            status = 1
+            try:
+                os.close(self._read)
+                with os.fdopen(write, "wb") as out:
+                    pickle.dump(build(), out, protocol=pickle.HIGHEST_PROTOCOL)
+                status = 0
+            finally:
+                os._exit(status)
+        os.close(write)
+
+    def result(self) -> object | None:
+        with os.fdopen(self._read, "rb") as stream:
+            data = stream.read()
+        _, status = os.waitpid(self._pid, 0)
+        if status != 0 or not data:
+            return None
+        return pickle.loads(data)
+
+    def abandon(self) -> None:
+        """Stop the child (the parent's own build failed, or was interrupted)."""
+        import signal
+
+        try:
+            os.kill(self._pid, signal.SIGKILL)
+            os.waitpid(self._pid, 0)
+        except (ProcessLookupError, ChildProcessError):
+            pass
+        os.close(self._read)
+
+
 def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice, *,
                support_points_mm: np.ndarray | None = None, initial_points_mm: np.ndarray | None = None,
                settings: ModelSettings = MODEL_SETTINGS,
@@ -877,18 +944,41 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         bridge = SupportBridge(np.asarray(support_points_mm, dtype=np.float64), lattice, settings.tree.max_bridge_mm,
                                views=(projections, masks))
     timings["tree"] = timings["agreement"] = 0.0  # (keys in the stages' order)
-    agreement, built, best = [], [], 0
+    same: list[int | None] = []  # per matching, an earlier one that gives the same volume (the same tree)
     for k, corr in enumerate(correspondences):
-        same = next((j for j in range(k) if np.array_equal(corr.initial, correspondences[j].initial)
-                     and all(np.array_equal(x, y, equal_nan=True) for x, y in zip(corr.own, correspondences[j].own))),
-                    None)
-        if same is not None or (k and len(corr.initial) < 2):  # the same tree again, or none
-            agreement.append(agreement[same] if same is not None else -np.inf)
+        same.append(next((j for j in range(k) if np.array_equal(corr.initial, correspondences[j].initial)
+                          and all(np.array_equal(x, y, equal_nan=True)
+                                  for x, y in zip(corr.own, correspondences[j].own))), None))
+    todo = [k for k in range(len(correspondences))
+            if same[k] is None and (k == 0 or len(correspondences[k].initial) >= 2)]
+
+    def build(k: int) -> tuple[VesselTree, TreeBuild, dict[str, int]]:
+        corr = correspondences[k]
+        return _tree_from_volume(projections, masks, lattice, corr.initial, corr.own, nearest, views, pairs, bridge,
+                                 replace(settings, match=replace(settings.match, claim_cost=corr.claim_cost)))
+
+    others = todo[1:]
+    forked = (_ForkedBuilds(lambda: [build(k) for k in others])
+              if others and settings.fork_alternatives and _can_fork() else None)
+    try:
+        trees: dict[int, tuple[VesselTree, TreeBuild, dict[str, int]]] = {todo[0]: build(todo[0])}
+    except BaseException:
+        if forked is not None:
+            forked.abandon()
+        raise
+    from_child = forked.result() if forked is not None else None
+    if from_child is not None:
+        trees.update(zip(others, from_child))
+    for k in others:
+        if k not in trees:  # no child, or it failed: built here
+            trees[k] = build(k)
+    agreement, built, best = [], [], 0
+    for k in range(len(correspondences)):
+        if k not in trees:  # the same tree again, or none
+            agreement.append(agreement[same[k]] if same[k] is not None else -np.inf)
             built.append(None)
             continue
-        built.append(_tree_from_volume(projections, masks, lattice, corr.initial, corr.own, nearest, views, pairs,
-                                       bridge, replace(settings, match=replace(settings.match,
-                                                                               claim_cost=corr.claim_cost))))
+        built.append(trees[k])
         if len(correspondences) > 1:
             start = time.perf_counter()
             agreement.append(float(mask_agreement(built[-1][0], projections, masks).mean()))
