@@ -952,16 +952,16 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     todo = [k for k in range(len(correspondences))
             if same[k] is None and (k == 0 or len(correspondences[k].initial) >= 2)]
 
-    def build(k: int) -> tuple[VesselTree, TreeBuild, dict[str, int]]:
+    def tree_of(k: int) -> tuple[VesselTree, TreeBuild, dict[str, int]]:
         corr = correspondences[k]
         return _tree_from_volume(projections, masks, lattice, corr.initial, corr.own, nearest, views, pairs, bridge,
                                  replace(settings, match=replace(settings.match, claim_cost=corr.claim_cost)))
 
     others = todo[1:]
-    forked = (_ForkedBuilds(lambda: [build(k) for k in others])
+    forked = (_ForkedBuilds(lambda: [tree_of(k) for k in others])
               if others and settings.fork_alternatives and _can_fork() else None)
     try:
-        trees: dict[int, tuple[VesselTree, TreeBuild, dict[str, int]]] = {todo[0]: build(todo[0])}
+        trees: dict[int, tuple[VesselTree, TreeBuild, dict[str, int]]] = {todo[0]: tree_of(todo[0])}
     except BaseException:
         if forked is not None:
             forked.abandon()
@@ -971,7 +971,7 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         trees.update(zip(others, from_child))
     for k in others:
         if k not in trees:  # no child, or it failed: built here
-            trees[k] = build(k)
+            trees[k] = tree_of(k)
     agreement, built, best = [], [], 0
     for k in range(len(correspondences)):
         if k not in trees:  # the same tree again, or none
