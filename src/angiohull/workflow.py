@@ -386,6 +386,10 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
                 "claim_costs": [float(c) for c in build.claim_costs],
                 "mask_agreement_dice": [float(a) for a in build.mask_agreement],
                 "kept_claim_cost": float(build.kept_claim_cost),
+                # trees built again, each with a branch's pairing taken for wrong (module notes)
+                "hypotheses": [{"claim_cost": float(c), "avoided_branch_length_mm": float(length),
+                                "mask_agreement_dice": float(a)} for c, length, a in build.hypotheses],
+                "kept_hypothesis": build.kept_hypothesis,
             }
     if scores is not None:
         report["scores"] = scores

@@ -79,6 +79,18 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    on the same arrays and sends its trees back pickled; if it fails they are built here). No
    Python thread is running, so none holds a lock the child would need; the BLAS library's own
    threads are fork-safe (multiprocessing's fork start method relies on it too).
+   **Hypotheses of a wrong pairing** (two views, ``hypotheses``): a tree that agrees less than
+   ``hypothesis_gate`` with the masks is built again ``hypotheses`` times, each time with one of
+   its side branches taken for a wrong pairing: the matchings run again (every round, and the
+   rematch of unexplained pixels) with the candidates within that branch's radius (at least
+   0.5 mm) plus ``avoid_margin_mm`` of its axis costing ``avoid_cost`` more
+   (:class:`.matching.Avoid`), so its pixels pair with something else or nothing. The branches
+   tried are those touching the most unexplained mask pixels (:func:`.agreement.suspect_branches`):
+   where a long vessel of one view was paired with a shorter wrong one of the other (a
+   foreshortened true partner, the distal RCA against the acute marginal), the rest of the shorter
+   vessel's own view is left beside it unexplained. Of every tree built (the matchings' own and
+   the hypotheses') the one agreeing best is kept. Each matching's hypotheses are built in the
+   process that built its tree (the forked child for the alternatives).
 5. **Lumen points**: the lattice points inside the fitted tree's tubes.
 
 Arrays and projections in, points and a tree out; nothing here reads files.
@@ -102,14 +114,15 @@ from ...tree import Branch, VesselTree
 from ..cube import Lattice
 from ..vessel_tree import TREE_SETTINGS, SupportBridge, TreeBuild, TreeSettings, hull_tree, refit_tree
 from .graph2d import CenterlineGraph2D, centerline_graph
-from .agreement import mask_agreement, tube_silhouette
-from .matching import MATCH_SETTINGS, MatchSettings, ViewData, anchored_match, mask_core, match_pixels
+from .agreement import mask_agreement, suspect_branches, tube_silhouette
+from .matching import MATCH_SETTINGS, Avoid, MatchSettings, ViewData, anchored_match, mask_core, match_pixels
 from .tubes import lattice_points_in_tubes
 
 __all__ = ["ModelSettings", "MODEL_SETTINGS", "ModelBuild", "model_tree", "centerline_graph", "CenterlineGraph2D",
            "MatchSettings", "lattice_points_in_tubes", "explained_shares", "prune_explained_branches",
            "reproduced_points", "prune_unreproduced_branches", "unreproduced_inner_branches", "covered_points",
-           "contradicted_stretches", "restore_uncovered_branches", "mask_agreement", "tube_silhouette"]
+           "contradicted_stretches", "restore_uncovered_branches", "mask_agreement", "suspect_branches",
+           "tube_silhouette"]
 
 
 @dataclass(frozen=True)
@@ -140,6 +153,12 @@ class ModelSettings:
     alternative_claim_costs: tuple[float, ...] = (3.0,)  # two views: the matchings again with each, a tree each, and
     # the tree whose tubes agree best with the masks kept (module notes)
     fork_alternatives: bool = True  # ... their trees built in a forked process meanwhile, where that is safe (notes)
+    hypotheses: int = 3  # two views: a tree agreeing less than hypothesis_gate with the masks is built again this
+    hypothesis_gate: float = 0.975  # many times, each with one of its side branches taken for a wrong pairing (notes)
+    unexplained_min_pixels: int = 5  # ... the branches touching the most unexplained pixels (in pieces this large)
+    avoid_cost: float = 10.0  # ... whose matchings' candidates within the branch's radius (at least 0.5 mm) ...
+    avoid_margin_mm: float = 1.0  # ... plus this cost this much more; a hypothesis's tree is kept where it agrees
+    hypothesis_margin: float = 0.005  # best of all, and by at least this more than the matchings' own trees
 
 
 MODEL_SETTINGS = ModelSettings()
@@ -165,6 +184,9 @@ class ModelBuild:
     claim_costs: tuple[float, ...] = ()  # two views: the matchings' claim costs, one tree each (module notes) ...
     mask_agreement: tuple[float, ...] = ()  # ... each tree's mean Dice with the masks (the same tree again: its own)
     kept_claim_cost: float | None = None  # ... and the claim cost of the tree kept (the most agreeing; None: one tree)
+    hypotheses: tuple[tuple[float, float, float], ...] = ()  # two views: per hypothesis tree (module notes) its claim
+    # cost, the length of the branch whose pairing it avoided (mm) and its agreement with the masks
+    kept_hypothesis: int | None = None  # ... the one kept (None: a matching's own tree)
 
 
 def _viewing_direction(projection: Projection) -> np.ndarray:
@@ -588,6 +610,9 @@ def tree_lumen_points(tree: VesselTree, lattice: Lattice, margin_mm: float = 0.0
     return lattice_points_in_tubes(*_tube_segments(tree), lattice, margin_mm=margin_mm)
 
 
+_AVOID_MIN_RADIUS_MM = 0.5  # a hypothesis avoids at least this radius around a thin branch's axis (plus the margin)
+
+
 @dataclass
 class _Correspondence:
     """One matching's volume (step 3) and what judges its tree: per view its own matching's 3D
@@ -599,55 +624,76 @@ class _Correspondence:
     own: list[np.ndarray]
 
 
-def _correspondence_volumes(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice,
-                            settings: ModelSettings, claim_costs: Sequence[float], say: Callable[[str], None],
-                            timings: dict[str, float]):
-    """Steps 1-3: the views' data, the pairs matched, the skeleton pixels per view, each view's map
-    of its nearest skeleton pixel, and per claim cost of ``claim_costs`` a :class:`_Correspondence`
-    (the first round of matchings, which no claim enters, is shared)."""
-    start = time.perf_counter()
-    views = [_view_data(p, m, settings.match.core_fraction) for p, m in zip(projections, masks)]
-    timings["centerlines_2d"] = time.perf_counter() - start
-    say(f"2D centerlines: {', '.join(str(v.graph.n_pixels) for v in views)} skeleton pixels")
+@dataclass
+class _Candidate:
+    """A final tree of the two-view method (module notes): a matching's own, or a hypothesis's."""
 
-    start = time.perf_counter()
-    pairs = _partners(projections)
-    caches = {pair: {} for pair in pairs}  # the candidates and transitions: no claim cost enters them
-    others = {(a, b): [views[k] for k in range(len(views)) if k not in (a, b)] for a, b in pairs}
-    first = {(a, b): match_pixels(views[a], views[b], others[(a, b)], settings.match, None, caches[(a, b)])
-             for a, b in pairs}
-    out, tubes_s = [], 0.0
-    for claim_cost in claim_costs:
+    tree: VesselTree
+    build: TreeBuild
+    counts: dict[str, int]
+    agreement: float  # mean Dice of its tubes' silhouettes and the masks
+    correspondence: _Correspondence
+    avoided_mm: float | None = None  # a hypothesis: the length of the branch whose pairing it avoided
+
+
+class _Matchings:
+    """Steps 1-3 (module notes): the views' data and the pairs matched, then a
+    :class:`_Correspondence` per claim cost and, for a hypothesis, per region avoided (the first
+    round of matchings, which neither a claim nor an avoided region enters, and the candidates are
+    computed once)."""
+
+    def __init__(self, projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice,
+                 settings: ModelSettings):
+        self.settings, self.lattice = settings, lattice
+        self.views = [_view_data(p, m, settings.match.core_fraction) for p, m in zip(projections, masks)]
+        self.pairs = tuple(_partners(projections))
+        self.nearest = [v.nearest_skeleton for v in self.views]
+        self._caches = {pair: {} for pair in self.pairs}  # the candidates and transitions
+        self._others = {(a, b): [self.views[k] for k in range(len(self.views)) if k not in (a, b)]
+                        for a, b in self.pairs}
+        self._first: dict | None = None
+        self.tubes_s = 0.0  # time spent on the tubes' lattice points
+
+    def _round(self, match: MatchSettings, previous: dict | None, avoid: Avoid | None) -> dict:
+        out = {}
+        for a, b in self.pairs:
+            # B's 3D point per skeleton pixel, from B's own matching into A
+            claims = previous[(b, a)][0] if previous is not None and (b, a) in previous else None
+            out[(a, b)] = match_pixels(self.views[a], self.views[b], self._others[(a, b)], match, claims,
+                                       self._caches[(a, b)], avoid)
+        return out
+
+    def correspondence(self, claim_cost: float, avoid: Avoid | None = None) -> tuple[_Correspondence, str]:
+        """The matchings with ``claim_cost`` (avoiding ``avoid``), their tubes' volume, and a line
+        for the progress. Raises ReconstructionError where nothing matches."""
+        settings = self.settings
         match = replace(settings.match, claim_cost=claim_cost)
-        results = first
+        if avoid is None:
+            if self._first is None:
+                self._first = self._round(settings.match, None, None)
+            results = self._first
+        else:
+            results = self._round(settings.match, None, avoid)
         for _ in range(settings.claim_rounds):
-            previous, results = results, {}
-            for a, b in pairs:
-                # B's 3D point per skeleton pixel, from B's own matching into A
-                claims = previous[(b, a)][0] if (b, a) in previous else None
-                results[(a, b)] = match_pixels(views[a], views[b], others[(a, b)], match, claims, caches[(a, b)])
+            results = self._round(match, results, avoid)
         tubes, shares = [], []
-        for a, b in pairs:
+        for a, b in self.pairs:
             points, radii, parent = results[(a, b)]
             shares.append(float(np.isfinite(radii).mean()) if len(radii) else 0.0)
             tubes.append(_matched_tubes(points, radii, parent, settings.max_segment_mm))
-        say(f"correspondence (claim cost {claim_cost:g}): "
-            + ", ".join(f"view {a} -> {b}: {s:.0%} matched" for (a, b), s in zip(pairs, shares)))
+        line = (f"correspondence (claim cost {claim_cost:g}{', a branch avoided' if avoid is not None else ''}): "
+                + ", ".join(f"view {a} -> {b}: {s:.0%} matched" for (a, b), s in zip(self.pairs, shares)))
         starts, ends, r0, r1 = (np.concatenate(x) for x in zip(*tubes))
         if len(starts) == 0:
             raise ReconstructionError("the tree method found no correspondence between the views' centerlines; "
                                       "check the calibration and that the masks show the same vessels")
-        own = [np.full((v.graph.n_pixels, 3), np.nan) for v in views]
-        for a, b in pairs:
+        own = [np.full((v.graph.n_pixels, 3), np.nan) for v in self.views]
+        for a, b in self.pairs:
             own[a] = results[(a, b)][0]
-        tubes_start = time.perf_counter()
-        initial = lattice_points_in_tubes(starts, ends, r0, r1, lattice)
-        tubes_s += time.perf_counter() - tubes_start
-        out.append(_Correspondence(claim_cost, initial, tuple(shares), own))
-    timings["correspondence"] = time.perf_counter() - start - tubes_s
-    timings["tubes"] = tubes_s
-    return (tuple(pairs), tuple(v.graph.n_pixels for v in views), [v.nearest_skeleton for v in views], views,
-            out)
+        start = time.perf_counter()
+        initial = lattice_points_in_tubes(starts, ends, r0, r1, self.lattice)
+        self.tubes_s += time.perf_counter() - start
+        return _Correspondence(claim_cost, initial, tuple(shares), own), line
 
 
 def _matched_tubes(points: np.ndarray, radii: np.ndarray, parent: np.ndarray, max_segment_mm: float,
@@ -722,11 +768,13 @@ def redundant_branches(tree: VesselTree, projections: Sequence[Projection], view
 def _tree_from_volume(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice,
                       initial: np.ndarray, own: list[np.ndarray] | None, nearest: list[np.ndarray] | None,
                       views: list[ViewData] | None, pairs: Sequence[tuple[int, int]], bridge: SupportBridge | None,
-                      settings: ModelSettings) -> tuple[VesselTree, TreeBuild, dict[str, int]]:
+                      settings: ModelSettings, avoid: Avoid | None = None
+                      ) -> tuple[VesselTree, TreeBuild, dict[str, int]]:
     """Step 4 (module notes): the tree of ``initial``'s volume, fitted and pruned, its stretches and
     unexplained pixels handled; with the counts of what each rule did. ``own`` (each view's own
     matching's 3D point per skeleton pixel), ``nearest`` and ``views`` are None when the volume is
-    not the correspondences' tubes."""
+    not the correspondences' tubes. ``avoid``: the region the matchings avoided (a hypothesis), avoided
+    again when unexplained pixels are matched again."""
 
     def fitted_and_pruned(volume: np.ndarray) -> tuple[VesselTree, TreeBuild, int, int, int]:
         tree_settings = settings.tree
@@ -798,7 +846,7 @@ def _tree_from_volume(projections: Sequence[Projection], masks: Sequence[np.ndar
                 continue
             anchor = np.where((which >= 0)[:, None], points[np.maximum(which, 0)], np.nan)
             got, got_radii, parent, new = anchored_match(views[a], views[b], anchor, radius[np.maximum(which, 0)],
-                                                         settings.match, settings.max_segment_mm)
+                                                         settings.match, settings.max_segment_mm, avoid)
             freed_from = np.where((which < 0) & (which_any >= 0), owner[np.maximum(which_any, 0)], -1)
             for branch in redundant:
                 mine = freed_from == branch
@@ -885,6 +933,26 @@ class _ForkedBuilds:
         os.close(self._read)
 
 
+def _in_two_processes(tasks: Sequence[Callable[[], object]], fork: bool) -> list:
+    """The results of ``tasks`` in their order: the first half run here and, where ``fork`` and
+    :func:`_can_fork` allow, the second half in a forked child meanwhile (built here if the child
+    fails; the child stopped if a task here raises)."""
+    half = (len(tasks) + 1) // 2
+    forked = (_ForkedBuilds(lambda: [task() for task in tasks[half:]])
+              if len(tasks) > 1 and fork and _can_fork() else None)
+    if forked is None:
+        return [task() for task in tasks]
+    try:
+        mine = [task() for task in tasks[:half]]
+    except BaseException:
+        forked.abandon()
+        raise
+    theirs = forked.result()
+    if theirs is None:  # the child failed: built here
+        theirs = [task() for task in tasks[half:]]
+    return mine + theirs
+
+
 def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice, *,
                support_points_mm: np.ndarray | None = None, initial_points_mm: np.ndarray | None = None,
                settings: ModelSettings = MODEL_SETTINGS,
@@ -929,10 +997,22 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     if initial_points_mm is None:  # with two views, one matching per claim cost, and the best tree kept (notes)
         claim_costs = (settings.match.claim_cost,) + (settings.alternative_claim_costs if len(projections) == 2
                                                       else ())
-        pairs, skeleton_pixels, nearest, views, correspondences = _correspondence_volumes(
-            projections, masks, lattice, settings, claim_costs, say, timings)
+        start = time.perf_counter()
+        matchings = _Matchings(projections, masks, lattice, settings)
+        timings["centerlines_2d"] = time.perf_counter() - start
+        say(f"2D centerlines: {', '.join(str(v.graph.n_pixels) for v in matchings.views)} skeleton pixels")
+        start = time.perf_counter()
+        correspondences = []
+        for claim_cost in claim_costs:
+            corr, line = matchings.correspondence(claim_cost)
+            say(line)
+            correspondences.append(corr)
+        timings["correspondence"] = time.perf_counter() - start - matchings.tubes_s
+        timings["tubes"] = matchings.tubes_s
+        pairs, nearest, views = matchings.pairs, matchings.nearest, matchings.views
+        skeleton_pixels = tuple(v.graph.n_pixels for v in views)
     else:
-        pairs, skeleton_pixels = (), ()
+        matchings, pairs, skeleton_pixels = None, (), ()
         correspondences = [_Correspondence(settings.match.claim_cost, np.asarray(initial_points_mm, dtype=float),
                                            (), None)]
     if len(correspondences[0].initial) < 2:
@@ -951,48 +1031,70 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
                                   for x, y in zip(corr.own, correspondences[j].own))), None))
     todo = [k for k in range(len(correspondences))
             if same[k] is None and (k == 0 or len(correspondences[k].initial) >= 2)]
+    judged = len(correspondences) > 1  # two views: the trees' agreement with the masks decides
+    agreement_s = [0.0]  # the agreement's time in this process
 
-    def tree_of(k: int) -> tuple[VesselTree, TreeBuild, dict[str, int]]:
+    def agreeing(tree: VesselTree) -> float:
+        start = time.perf_counter()
+        value = float(mask_agreement(tree, projections, masks).mean())
+        agreement_s[0] += time.perf_counter() - start
+        return value
+
+    def settings_of(corr: _Correspondence) -> ModelSettings:
+        return replace(settings, match=replace(settings.match, claim_cost=corr.claim_cost))
+
+    def tree_of(k: int) -> _Candidate:
         corr = correspondences[k]
-        return _tree_from_volume(projections, masks, lattice, corr.initial, corr.own, nearest, views, pairs, bridge,
-                                 replace(settings, match=replace(settings.match, claim_cost=corr.claim_cost)))
+        built = _tree_from_volume(projections, masks, lattice, corr.initial, corr.own, nearest, views, pairs, bridge,
+                                  settings_of(corr))
+        return _Candidate(*built, agreeing(built[0]) if judged else np.nan, corr)
 
-    others = todo[1:]
-    forked = (_ForkedBuilds(lambda: [tree_of(k) for k in others])
-              if others and settings.fork_alternatives and _can_fork() else None)
-    try:
-        trees: dict[int, tuple[VesselTree, TreeBuild, dict[str, int]]] = {todo[0]: tree_of(todo[0])}
-    except BaseException:
-        if forked is not None:
-            forked.abandon()
-        raise
-    from_child = forked.result() if forked is not None else None
-    if from_child is not None:
-        trees.update(zip(others, from_child))
-    for k in others:
-        if k not in trees:  # no child, or it failed: built here
-            trees[k] = tree_of(k)
-    agreement, built, best = [], [], 0
-    for k in range(len(correspondences)):
-        if k not in trees:  # the same tree again, or none
-            agreement.append(agreement[same[k]] if same[k] is not None else -np.inf)
-            built.append(None)
-            continue
-        built.append(trees[k])
-        if len(correspondences) > 1:
-            start = time.perf_counter()
-            agreement.append(float(mask_agreement(built[-1][0], projections, masks).mean()))
-            timings["agreement"] += time.perf_counter() - start
-            if agreement[-1] > agreement[best]:
-                best = k
+    def hypothesis(k: int, tree: VesselTree, branch: int) -> _Candidate | None:
+        """Matching ``k``'s tree built again with the pairing of its branch ``branch`` avoided."""
+        corr, b = correspondences[k], tree.branches[branch]
+        avoid = Avoid(b.points_mm, np.maximum(b.radius_mm, _AVOID_MIN_RADIUS_MM) + settings.avoid_margin_mm,
+                      settings.avoid_cost)
+        try:
+            other, _ = matchings.correspondence(corr.claim_cost, avoid)
+            if len(other.initial) < 2:
+                return None
+            built = _tree_from_volume(projections, masks, lattice, other.initial, other.own, nearest, views, pairs,
+                                      bridge, settings_of(corr), avoid)
+        except ReconstructionError:  # no tree without that branch's pairing: no hypothesis
+            return None
+        return _Candidate(*built, agreeing(built[0]), other, float(b.length_mm))
+
+    trees = dict(zip(todo, _in_two_processes([lambda k=k: tree_of(k) for k in todo], settings.fork_alternatives)))
+    agreement = []
+    for k in range(len(correspondences)):  # the same tree again, or none
+        agreement.append(trees[k].agreement if k in trees else agreement[same[k]] if same[k] is not None else -np.inf)
+    best = max((trees[k] for k in todo), key=lambda c: c.agreement)  # the first of equals
+    hypotheses: list[_Candidate] = []
+    if judged and settings.hypotheses > 0:  # step 4's hypotheses of a wrong pairing (module notes)
+        tasks = [(k, branch) for k in todo if trees[k].agreement < settings.hypothesis_gate
+                 for branch in suspect_branches(trees[k].tree, projections, masks, settings.hypotheses,
+                                                settings.unexplained_min_pixels)]
+        if tasks:
+            say(f"{len(tasks)} hypotheses of a wrong pairing (trees agreeing less than {settings.hypothesis_gate:g})")
+        built = _in_two_processes([lambda k=k, b=b: hypothesis(k, trees[k].tree, b) for k, b in tasks],
+                                  settings.fork_alternatives)
+        hypotheses = [h for h in built if h is not None]
+        bar = best.agreement + settings.hypothesis_margin
+        for h in hypotheses:
+            if h.agreement >= bar and h.agreement > best.agreement:
+                best = h
+    timings["agreement"] = agreement_s[0]
     timings["tree"] = time.perf_counter() - tree_start - timings["agreement"]
-    if len(correspondences) > 1:
+    if judged:
+        tried = (f"; {len(hypotheses)} hypotheses of a wrong pairing: "
+                 + ", ".join(f"{h.agreement:.4f}" for h in hypotheses)) if hypotheses else ""
         say(f"trees' agreement with the masks (mean Dice over the views): "
             + ", ".join(f"claim cost {c.claim_cost:g}: {a:.4f}" for c, a in zip(correspondences, agreement))
-            + f"; kept claim cost {correspondences[best].claim_cost:g}")
+            + tried + f"; kept claim cost {best.correspondence.claim_cost:g}"
+            + (f", the tree without the pairing of a {best.avoided_mm:.0f} mm branch" if best.avoided_mm else ""))
     else:
         del timings["agreement"]
-    tree, tree_build, counts = built[best]
+    tree, tree_build, counts = best.tree, best.build, best.counts
     say(f"tree: {tree.n_branches} branches, fitted to the views ({counts['pruned']} explained by the others "
         f"removed, {counts['unreproduced']} that the views' own matchings do not reproduce, {counts['restored']} "
         f"of these put back, {counts['stretch_points']} points of stretches they contradict, "
@@ -1002,12 +1104,15 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     start = time.perf_counter()
     lumen = tree_lumen_points(tree, lattice, settings.lumen_margin_steps * lattice.spacing_mm)
     timings["lumen"] = time.perf_counter() - start
-    build = ModelBuild(pairs=pairs, matched_share=correspondences[best].shares, skeleton_pixels=skeleton_pixels,
+    kept = best.correspondence
+    build = ModelBuild(pairs=pairs, matched_share=kept.shares, skeleton_pixels=skeleton_pixels,
                        explained_removed=counts["pruned"], unreproduced_removed=counts["unreproduced"],
                        stretch_points_removed=counts["stretch_points"], inner_removed=counts["inner_removed"],
                        rebuilds=counts["rebuilds"], restored=counts["restored"], rematched_pixels=counts["rematched"],
                        replaced_branches=counts["replaced"], tree_build=tree_build, timings_s=timings,
-                       claim_costs=tuple(c.claim_cost for c in correspondences) if len(correspondences) > 1 else (),
-                       mask_agreement=tuple(agreement),
-                       kept_claim_cost=correspondences[best].claim_cost if len(correspondences) > 1 else None)
+                       claim_costs=tuple(c.claim_cost for c in correspondences) if judged else (),
+                       mask_agreement=tuple(agreement) if judged else (),
+                       kept_claim_cost=kept.claim_cost if judged else None,
+                       hypotheses=tuple((h.correspondence.claim_cost, h.avoided_mm, h.agreement) for h in hypotheses),
+                       kept_hypothesis=next((j for j, h in enumerate(hypotheses) if h is best), None))
     return lumen, tree, build

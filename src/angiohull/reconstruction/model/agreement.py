@@ -17,11 +17,12 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
+from scipy import ndimage as ndi
 
 from ...geometry import Projection
-from ...tree import VesselTree
+from ...tree import Branch, VesselTree
 
-__all__ = ["tube_silhouette", "mask_agreement"]
+__all__ = ["tube_silhouette", "mask_agreement", "suspect_branches"]
 
 
 def _samples(tree: VesselTree, step_mm: float) -> tuple[np.ndarray, np.ndarray]:
@@ -75,3 +76,42 @@ def mask_agreement(tree: VesselTree, projections: Sequence[Projection], masks: S
         if total:
             out[k] = 2.0 * int((mask & drawn).sum()) / total
     return out
+
+
+def suspect_branches(tree: VesselTree, projections: Sequence[Projection], masks: Sequence[np.ndarray], count: int,
+                     min_pixels: int = 5, *, step_mm: float = 0.25) -> list[int]:
+    """The side branches (not the root) most likely paired wrongly across two views: at most
+    ``count`` of them, by the unexplained mask pixels they touch, most first (ties: the first
+    branch first). A view's unexplained pixels are those of its mask outside the tree's
+    :func:`tube_silhouette`, in 8-connected pieces; a branch touches a piece of at least
+    ``min_pixels`` pixels where the piece reaches within two pixels (4-connected steps) of the
+    branch's own silhouette; it scores the pieces' pixels it touches, summed over the views. A
+    vessel of one view paired with the wrong vessel of the other leaves the rest of that vessel,
+    beyond the shorter of the two, unexplained beside it."""
+    if count <= 0 or tree.n_branches < 2:
+        return []
+    touched = np.zeros(tree.n_branches)
+    for projection, mask in zip(projections, masks):
+        mask = np.asarray(mask, dtype=bool)
+        unexplained = mask & ~tube_silhouette(tree, projection, step_mm=step_mm)
+        pieces, n = ndi.label(unexplained, structure=np.ones((3, 3), dtype=bool))
+        if n == 0:
+            continue
+        size = np.bincount(pieces.ravel(), minlength=n + 1)
+        size[0] = 0
+        size[size < min_pixels] = 0
+        for k in range(1, tree.n_branches):
+            b = tree.branches[k]
+            own = tube_silhouette(VesselTree((Branch(b.points_mm, b.radius_mm, None, None, b.name),)), projection,
+                                  step_mm=step_mm)
+            rows, cols = np.nonzero(own)
+            if len(rows) == 0:
+                continue
+            # two dilation steps reach two pixels past the silhouette's box at most
+            lo_r, lo_c = max(rows.min() - 2, 0), max(cols.min() - 2, 0)
+            hi_r, hi_c = min(rows.max() + 3, own.shape[0]), min(cols.max() + 3, own.shape[1])
+            near = ndi.binary_dilation(own[lo_r:hi_r, lo_c:hi_c], iterations=2)
+            ids = np.unique(pieces[lo_r:hi_r, lo_c:hi_c][near])
+            touched[k] += size[ids].sum()
+    order = 1 + np.argsort(-touched[1:], kind="stable")
+    return [int(k) for k in order[:count]]

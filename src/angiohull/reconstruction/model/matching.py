@@ -67,12 +67,13 @@ import numpy as np
 from scipy import ndimage as ndi
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from ...geometry import Projection
 from ..epipolar import ray_directions
 from .graph2d import CenterlineGraph2D
 
-__all__ = ["MatchSettings", "MATCH_SETTINGS", "ViewData", "anchored_match", "mask_core", "match_pixels",
+__all__ = ["Avoid", "MatchSettings", "MATCH_SETTINGS", "ViewData", "anchored_match", "mask_core", "match_pixels",
            "triangulate_midpoint"]
 
 
@@ -250,7 +251,9 @@ def _line_runs(b: ViewData, start_uv: np.ndarray, end_uv: np.ndarray, step_px: f
 
 
 def _candidates(a: ViewData, b: ViewData, others: Sequence[ViewData], samples: np.ndarray,
-                settings: MatchSettings) -> _Candidates:
+                settings: MatchSettings, keep_all: bool = False) -> _Candidates:
+    """The candidates of the ``samples`` (module notes, steps 1-2): at most ``max_candidates`` per
+    sample, cheapest first, or with ``keep_all`` every one."""
     ga, gb = a.graph, b.graph
     dirs_a = ray_directions(a.projection, ga.uv_px[samples])
     centre_a = a.projection.camera_centre_mm
@@ -309,11 +312,35 @@ def _candidates(a: ViewData, b: ViewData, others: Sequence[ViewData], samples: n
     valid &= q >= 0
     radius = 0.5 * (ra + rb)
     cands = _Candidates(sample_of[valid], q[valid], point[valid], radius[valid], unary[valid], scale_a[valid])
-    # at most max_candidates per sample, cheapest first
+    return cands if keep_all else _cheapest(cands, settings.max_candidates)
+
+
+def _cheapest(cands: _Candidates, count: int) -> _Candidates:
+    """At most ``count`` candidates per sample, by sample, cheapest first."""
     order = np.lexsort((cands.unary, cands.sample))
     rank = np.arange(len(order)) - np.searchsorted(cands.sample[order], cands.sample[order], side="left")
-    keep = order[rank < settings.max_candidates]  # by sample, cheapest first
+    keep = order[rank < count]
     return _Candidates(*(getattr(cands, f)[keep] for f in ("sample", "q", "point", "radius", "unary", "scale_a")))
+
+
+@dataclass(frozen=True)
+class Avoid:
+    """A region of 3D space a matching avoids: a candidate whose point lies within ``reach_mm``
+    (per point) of one of ``points_mm`` costs ``cost`` more (the hypothesis that a branch there is a
+    wrong pairing; module notes of :mod:`angiohull.reconstruction.model`)."""
+
+    points_mm: np.ndarray  # (M, 3)
+    reach_mm: np.ndarray  # (M,)
+    cost: float
+
+
+def _avoiding(cands: _Candidates, avoid: Avoid | None) -> _Candidates:
+    """``cands`` with ``avoid.cost`` added to the unary cost of those within its region."""
+    if avoid is None or len(avoid.points_mm) == 0 or len(cands.point) == 0:
+        return cands
+    gap, nearest = cKDTree(avoid.points_mm).query(cands.point)
+    inside = gap <= avoid.reach_mm[nearest]
+    return replace(cands, unary=cands.unary + avoid.cost * inside)
 
 
 def _claimed(a: ViewData, samples: np.ndarray, cands: _Candidates, claims: np.ndarray,
@@ -334,12 +361,13 @@ def _bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 
 def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), settings: MatchSettings = MATCH_SETTINGS,
-                 claims: np.ndarray | None = None, cache: dict | None = None
+                 claims: np.ndarray | None = None, cache: dict | None = None, avoid: Avoid | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Match every skeleton pixel of view ``a`` into view ``b`` at once: the costs of the module
     notes, minimised exactly over a spanning forest of A's pixel graph (min-sum messages from the
     leaves to the roots, then the choices back down), so that the choices along one vessel, through
-    A's junctions, hang together.
+    A's junctions, hang together. With ``avoid``, the candidates in its region cost more (before
+    each pixel's cheapest ``max_candidates`` are kept).
 
     Returns
     -------
@@ -356,13 +384,17 @@ def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), sett
     radii = np.full(n_p, np.nan)
     if n_p == 0 or b.graph.n_pixels == 0:
         return points, radii, np.full(n_p, -1, dtype=np.int64)
-    if cache is not None and "candidates" in cache:
-        cands, parent, levels = cache["candidates"], cache["parent"], cache["levels"]
+    if cache is not None and "candidates" in cache and (avoid is None or "every" in cache):
+        cands, parent, levels, every = cache["candidates"], cache["parent"], cache["levels"], cache.get("every")
     else:
-        cands = _candidates(a, b, others, np.arange(n_p), settings)
+        every = _candidates(a, b, others, np.arange(n_p), settings, keep_all=True)
+        cands = _cheapest(every, settings.max_candidates)
         parent, levels = g.spanning_forest()
         if cache is not None:
-            cache.update(candidates=cands, parent=parent, levels=levels)
+            cache.update(candidates=cands, parent=parent, levels=levels, every=every)
+    if avoid is not None:  # other candidates than the cached ones, so their transitions too
+        cands = _cheapest(_avoiding(every, avoid), settings.max_candidates)
+        cache = None
     cost_of = cands.unary
     if claims is not None:
         cost_of = cost_of + settings.claim_cost * _claimed(a, np.arange(n_p), cands, claims, settings)
@@ -433,7 +465,7 @@ def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), sett
 
 
 def anchored_match(a: ViewData, b: ViewData, anchor_mm: np.ndarray, anchor_radius_mm: np.ndarray,
-                   settings: MatchSettings = MATCH_SETTINGS, max_segment_mm: float = 2.0
+                   settings: MatchSettings = MATCH_SETTINGS, max_segment_mm: float = 2.0, avoid: Avoid | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Match the *free* skeleton pixels of view ``a`` (those whose ``anchor_mm`` row is nan) into view
     ``b`` again, the others pinned to their anchors (a reconstruction's 3D points that explain
@@ -444,7 +476,8 @@ def anchored_match(a: ViewData, b: ViewData, anchor_mm: np.ndarray, anchor_radiu
     skeleton of its own), and B showing the vessel wider than A costs nothing (an overlap there
     only widens it; the radius is then A's), narrower as before. A free pixel's match is kept only
     where a path of matched neighbours (at most ``max_segment_mm`` apart in 3D) joins it to a pinned
-    pixel: what continues the reconstruction, not a vessel placed anew.
+    pixel: what continues the reconstruction, not a vessel placed anew. ``avoid``: as for
+    :func:`match_pixels`, on the free pixels' candidates.
 
     Returns
     -------
@@ -470,7 +503,9 @@ def anchored_match(a: ViewData, b: ViewData, anchor_mm: np.ndarray, anchor_radiu
     # the free pixels' candidates, without the partner's skeleton term, the radius term one-sided
     samples = np.flatnonzero(free)
     eased = replace(settings, radius_cap=0.0, partner_skeleton_px=np.inf)
-    c = _candidates(a, b, [], samples, eased)
+    c = _candidates(a, b, [], samples, eased, keep_all=avoid is not None)
+    if avoid is not None:
+        c = _cheapest(_avoiding(c, avoid), settings.max_candidates)
     pixel = samples[c.sample]
     ra = g.half_width_px[pixel] * c.scale_a
     rb = 2.0 * c.radius - ra  # B's radius (the candidates hold the two views' mean)
