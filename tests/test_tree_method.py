@@ -1123,13 +1123,13 @@ def test_a_forked_build_returns_its_result_and_a_failed_or_abandoned_one_nothing
 @pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="os.fork is not available on this platform")
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")  # Python 3.12+: a fork under pytest-xdist's threads
 def test_the_alternative_tree_built_in_a_forked_process_is_the_one_built_here(monkeypatch):
-    from angiohull.reconstruction.model import _can_fork
+    from angiohull.reconstruction.model import _can_fork, forking
 
     _, projections, masks = _generated("rca", 7000)
     here = reconstruct(projections, masks, method="tree", centerlines=False)  # no fork where threads run (xdist)
     monkeypatch.setitem(model.model_tree.__kwdefaults__, "settings", replace(MODEL_SETTINGS, fork_alternatives=False))
     sequential = reconstruct(projections, masks, method="tree", centerlines=False)
-    monkeypatch.setattr(model, "_can_fork", lambda: True)
+    monkeypatch.setattr(forking, "_can_fork", lambda: True)
     monkeypatch.setitem(model.model_tree.__kwdefaults__, "settings", MODEL_SETTINGS)
     forked = reconstruct(projections, masks, method="tree", centerlines=False)
     for result in (here, forked):
