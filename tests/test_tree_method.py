@@ -895,7 +895,8 @@ def test_the_report_of_a_tree_reconstruction_names_its_pairs_prunings_and_stages
     assert isinstance(block["unexplained_pixels_matched_again"], int) and block["unexplained_pixels_matched_again"] >= 0
     assert isinstance(block["redundant_branches_replaced"], int) and block["redundant_branches_replaced"] >= 0
     assert block["rebuilds"] in range(MODEL_SETTINGS.stretch_rounds + MODEL_SETTINGS.rematch_rounds + 1)
-    assert set(block["timings_s"]) >= {"centerlines_2d", "correspondence", "tubes", "tree", "agreement", "lumen"}
+    assert set(block["timings_s"]) >= {"centerlines_2d", "correspondence", "tubes", "tree", "agreement", "hypotheses",
+                                       "lumen"}
     # two views: a tree per claim cost, the one whose tubes agree best with the masks kept
     matchings = block["matchings"]
     assert matchings["claim_costs"] == [MODEL_SETTINGS.match.claim_cost, *MODEL_SETTINGS.alternative_claim_costs]

@@ -992,7 +992,10 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     for k in range(len(correspondences)):  # the same tree again, or none
         agreement.append(trees[k].agreement if k in trees else agreement[same[k]] if same[k] is not None else -np.inf)
     best = max((trees[k] for k in todo), key=lambda c: c.agreement)  # the first of equals
+    timings["agreement"] = agreement_s[0]
+    timings["tree"] = time.perf_counter() - tree_start - timings["agreement"]
     hypotheses: list[_Candidate] = []
+    start = time.perf_counter()
     if judged and settings.hypotheses > 0:  # step 4's hypotheses of a wrong pairing (module notes)
         tasks = [(k, branch) for k in todo if trees[k].agreement < settings.hypothesis_gate
                  for branch in suspect_branches(trees[k].tree, projections, masks, settings.hypotheses,
@@ -1006,8 +1009,8 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         for h in hypotheses:
             if h.agreement >= bar and h.agreement > best.agreement:
                 best = h
-    timings["agreement"] = agreement_s[0]
-    timings["tree"] = time.perf_counter() - tree_start - timings["agreement"]
+    if judged:  # their matchings, trees and agreement
+        timings["hypotheses"] = time.perf_counter() - start
     if judged:
         tried = (f"; {len(hypotheses)} hypotheses of a wrong pairing: "
                  + ", ".join(f"{h.agreement:.4f}" for h in hypotheses)) if hypotheses else ""
