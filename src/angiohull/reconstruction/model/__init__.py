@@ -155,12 +155,17 @@ class ModelSettings:
     alternative_claim_costs: tuple[float, ...] = (3.0,)  # two views: the matchings again with each, a tree each, and
     # the tree whose tubes agree best with the masks kept (module notes)
     fork_alternatives: bool = True  # ... their trees built in a forked process meanwhile, where that is safe (notes)
-    hypotheses: int = 3  # two views: a tree agreeing less than hypothesis_gate with the masks is built again this
-    hypothesis_gate: float = 0.975  # many times, each with one of its side branches taken for a wrong pairing (notes)
-    unexplained_min_pixels: int = 5  # ... the branches touching the most unexplained pixels (in pieces this large)
-    avoid_cost: float = 10.0  # ... whose matchings' candidates within the branch's radius (at least 0.5 mm) ...
-    avoid_margin_mm: float = 1.0  # ... plus this cost this much more; a hypothesis's tree is kept where it agrees
-    hypothesis_margin: float = 0.005  # best of all, and by at least this more than the matchings' own trees
+    # two views, hypotheses of a wrong pairing (module notes): a tree agreeing less than hypothesis_gate with the
+    # masks is built again once per side branch of the `hypotheses` touching the most unexplained mask pixels (in
+    # pieces of unexplained_min_pixels or more), the candidates within that branch's radius (at least 0.5 mm) plus
+    # avoid_margin_mm costing avoid_cost more; a hypothesis's tree is kept where it agrees best of all, and by at
+    # least hypothesis_margin more than the matchings' own trees
+    hypotheses: int = 3
+    hypothesis_gate: float = 0.975
+    unexplained_min_pixels: int = 5
+    avoid_cost: float = 10.0
+    avoid_margin_mm: float = 1.0
+    hypothesis_margin: float = 0.005
 
 
 MODEL_SETTINGS = ModelSettings()
