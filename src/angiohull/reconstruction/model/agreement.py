@@ -91,9 +91,14 @@ def suspect_branches(tree: VesselTree, projections: Sequence[Projection], masks:
     if count <= 0 or tree.n_branches < 2:
         return []
     touched = np.zeros(tree.n_branches)
+    alone = [VesselTree((Branch(b.points_mm, b.radius_mm, None, None, b.name),)) for b in tree.branches]
     for projection, mask in zip(projections, masks):
-        mask = np.asarray(mask, dtype=bool)
-        unexplained = mask & ~tube_silhouette(tree, projection, step_mm=step_mm)
+        # each branch's own silhouette; the tree's is their union (the same discs)
+        own_silhouettes = [tube_silhouette(branch, projection, step_mm=step_mm) for branch in alone]
+        drawn = own_silhouettes[0].copy()
+        for own in own_silhouettes[1:]:
+            drawn |= own
+        unexplained = np.asarray(mask, dtype=bool) & ~drawn
         pieces, n = ndi.label(unexplained, structure=np.ones((3, 3), dtype=bool))
         if n == 0:
             continue
@@ -101,9 +106,7 @@ def suspect_branches(tree: VesselTree, projections: Sequence[Projection], masks:
         size[0] = 0
         size[size < min_pixels] = 0
         for k in range(1, tree.n_branches):
-            b = tree.branches[k]
-            own = tube_silhouette(VesselTree((Branch(b.points_mm, b.radius_mm, None, None, b.name),)), projection,
-                                  step_mm=step_mm)
+            own = own_silhouettes[k]
             rows, cols = np.nonzero(own)
             if len(rows) == 0:
                 continue
