@@ -381,14 +381,16 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
             "rebuilds": int(build.rebuilds),
             "timings_s": {k: float(v) for k, v in build.timings_s.items()},
         }
-        if build.claim_costs:  # two views: a tree per matching, the one agreeing best with the masks kept
+        if build.claim_costs:  # two views: a tree per matching, the one judged best kept
             report["tree_method"]["matchings"] = {
                 "claim_costs": [float(c) for c in build.claim_costs],
                 "mask_agreement_dice": [float(a) for a in build.mask_agreement],
+                "judged_score": [float(j) for j in build.judged_score],  # the agreement less the lengths' penalty
                 "kept_claim_cost": float(build.kept_claim_cost),
                 # trees built again, each with a branch's pairing taken for wrong (module notes)
                 "hypotheses": [{"claim_cost": float(c), "avoided_branch_length_mm": float(length),
-                                "mask_agreement_dice": float(a)} for c, length, a in build.hypotheses],
+                                "mask_agreement_dice": float(a), "judged_score": float(j)}
+                               for c, length, a, j in build.hypotheses],
                 "kept_hypothesis": build.kept_hypothesis,
             }
     if scores is not None:

@@ -66,13 +66,22 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    (``TreeSettings.bound_unmeasured``).
    **With two views, one tree per matching** (``alternative_claim_costs``): steps 2-4 run again with
    each alternative claim cost (the first round of matchings, which no claim enters, shared), and of
-   the final trees the one whose tubes' silhouettes agree best with the masks (mean Dice over the
-   views, :mod:`.agreement`) is kept; a matching that gives the same volume and own matchings as an
+   the final trees the one judged best (below) is kept: the one whose tubes' silhouettes agree
+   best with the masks (mean Dice over the views, :mod:`.agreement`), less a penalty for length; a matching that gives the same volume and own matchings as an
    earlier one is not built again. A wrong pairing (a vessel of one view with the wrong vessel of
    the other) is consistent with both silhouettes only until its tree has been pruned and fitted:
    then it leaves mask pixels to nothing or draws tubes outside the masks, and the larger claim
    cost, under which the reverse matching's disagreement weighs more, often pairs that vessel
    right. Judging the first trees instead of the final ones kept little of the gain
+   (docs/tree-method.md). **The judge** is the agreement less a penalty for length:
+   ``length_weight`` times the tree's length plus ``redundant_weight`` times the length of its
+   branches only one view needs (:func:`redundant_branches`, both directions: their own points
+   the rest covers in one view at least ``rematch_redundant_share``, in the other less than
+   ``explained_share``), over the mean length of the matchings' own trees. Of trees that explain
+   the masks alike, the one with a wrong pairing is most often the longer, and it often carries a branch that hides under
+   another in one view while it explains the other view's pixels of a vessel it is not: among
+   candidates agreeing within 0.01 of each other and the best, the shorter tree was the nearer
+   to the truth in 85 % of the pairs more than 1 mm apart, the better agreement in 64 %
    (docs/tree-method.md). On Linux with two CPUs or more and no other Python thread
    (``fork_alternatives``, :func:`.forking._can_fork`), the alternative matchings' trees are built in a
    forked child while this process builds the first (the same trees: the child runs the same code
@@ -88,7 +97,7 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    tried are those touching the most unexplained mask pixels (:func:`.agreement.suspect_branches`):
    where a long vessel of one view was paired with a shorter wrong one of the other (a
    foreshortened true partner, the distal RCA against the acute marginal), the rest of the shorter
-   vessel's own view is left beside it unexplained. A hypothesis's tree is kept where it agrees
+   vessel's own view is left beside it unexplained. A hypothesis's tree is kept where it is judged
    best of all and by at least ``hypothesis_margin`` more than the best of the matchings' own trees
    (many hypotheses, each a little different, would otherwise win by noise: on the segmented
    angiograms of the benchmark, every hypothesis of every tree tried and the best kept put the
@@ -153,19 +162,24 @@ class ModelSettings:
     rematch_redundant_share: float = 0.9  # ... also those only branches the other view finds redundant explain (notes):
     rematch_replace_share: float = 0.5  # ... such a branch leaves the rebuild when this share of its freed pixels join
     alternative_claim_costs: tuple[float, ...] = (3.0,)  # two views: the matchings again with each, a tree each, and
-    # the tree whose tubes agree best with the masks kept (module notes)
+    # the tree judged best kept (its tubes' agreement with the masks less the lengths' penalty below; module notes)
     fork_alternatives: bool = True  # ... their trees built in a forked process meanwhile, where that is safe (notes)
     # two views, hypotheses of a wrong pairing (module notes): a tree agreeing less than hypothesis_gate with the
     # masks is built again once per side branch of the `hypotheses` touching the most unexplained mask pixels (in
     # pieces of unexplained_min_pixels or more), the candidates within that branch's radius (at least 0.5 mm) plus
-    # avoid_margin_mm costing avoid_cost more; a hypothesis's tree is kept where it agrees best of all, and by at
-    # least hypothesis_margin more than the matchings' own trees
+    # avoid_margin_mm costing avoid_cost more; a hypothesis's tree is kept where it is judged best of all, and by
+    # at least hypothesis_margin more than the matchings' own trees
     hypotheses: int = 3
     hypothesis_gate: float = 0.975
     unexplained_min_pixels: int = 5
     avoid_cost: float = 10.0
     avoid_margin_mm: float = 1.0
     hypothesis_margin: float = 0.005
+    # two views, how the trees are judged (module notes): their agreement with the masks less length_weight times
+    # their length and redundant_weight times the length of their branches only one view needs, both over the mean
+    # length of the matchings' own trees (of trees that explain the masks alike, the wrong pairing's is longer)
+    length_weight: float = 0.1
+    redundant_weight: float = 0.1
 
 
 MODEL_SETTINGS = ModelSettings()
@@ -190,9 +204,10 @@ class ModelBuild:
     replaced_branches: int = 0  # branches redundant in one view whose pixels in the other were matched again elsewhere
     claim_costs: tuple[float, ...] = ()  # two views: the matchings' claim costs, one tree each (module notes) ...
     mask_agreement: tuple[float, ...] = ()  # ... each tree's mean Dice with the masks (the same tree again: its own)
-    kept_claim_cost: float | None = None  # ... and the claim cost of the tree kept (the most agreeing; None: one tree)
-    hypotheses: tuple[tuple[float, float, float], ...] = ()  # two views: per hypothesis tree (module notes) its claim
-    # cost, the length of the branch whose pairing it avoided (mm) and its agreement with the masks
+    judged_score: tuple[float, ...] = ()  # ... that less the lengths' penalty (module notes), which decides
+    kept_claim_cost: float | None = None  # ... and the claim cost of the tree kept (the best judged; None: one tree)
+    hypotheses: tuple[tuple[float, float, float, float], ...] = ()  # two views: per hypothesis tree (module notes)
+    # its claim cost, the length of the branch whose pairing it avoided (mm), its agreement with the masks and score
     kept_hypothesis: int | None = None  # ... the one kept (None: a matching's own tree)
 
 
@@ -641,6 +656,15 @@ class _Candidate:
     agreement: float  # mean Dice of its tubes' silhouettes and the masks
     correspondence: _Correspondence
     avoided_mm: float | None = None  # a hypothesis: the length of the branch whose pairing it avoided
+    length_mm: float = 0.0  # the tree's length
+    redundant_mm: float = 0.0  # ... and its branches' that only one view needs (redundant in the other)
+    score: float = np.nan  # the agreement less the lengths' penalty (module notes), set once every own tree is built
+
+    def judged(self, settings: "ModelSettings", own_length_mm: float) -> float:
+        """The agreement less the lengths' penalty, the lengths over ``own_length_mm`` (the mean
+        length of the matchings' own trees)."""
+        penalty = settings.length_weight * self.length_mm + settings.redundant_weight * self.redundant_mm
+        return self.agreement - penalty / max(own_length_mm, 1e-9)
 
 
 class _Matchings:
@@ -959,14 +983,20 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
                                   for x, y in zip(corr.own, correspondences[j].own))), None))
     todo = [k for k in range(len(correspondences))
             if same[k] is None and (k == 0 or len(correspondences[k].initial) >= 2)]
-    judged = len(correspondences) > 1  # two views: the trees' agreement with the masks decides
+    judged = len(correspondences) > 1  # two views: the trees' agreement with the masks and lengths decide
     agreement_s = [0.0]  # the agreement's time in this process
 
-    def agreeing(tree: VesselTree) -> float:
+    def judging(tree: VesselTree) -> dict[str, float]:
+        """What judges a tree (module notes): its agreement, its length and its redundant branches'."""
         start = time.perf_counter()
-        value = float(mask_agreement(tree, projections, masks).mean())
+        agreement = float(mask_agreement(tree, projections, masks).mean())
+        redundant = np.unique(np.concatenate(redundant_branches(
+            tree, projections, pairs, settings.rematch_redundant_share, settings.explained_share,
+            settings.explained_reach_radii)))
+        out = dict(agreement=agreement, length_mm=tree.length_mm,
+                   redundant_mm=float(sum(tree.branches[k].length_mm for k in redundant)))
         agreement_s[0] += time.perf_counter() - start
-        return value
+        return out
 
     def settings_of(corr: _Correspondence) -> ModelSettings:
         return replace(settings, match=replace(settings.match, claim_cost=corr.claim_cost))
@@ -975,7 +1005,9 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         corr = correspondences[k]
         built = _tree_from_volume(projections, masks, lattice, corr.initial, corr.own, nearest, views, pairs, bridge,
                                   settings_of(corr))
-        return _Candidate(*built, agreeing(built[0]) if judged else np.nan, corr)
+        if not judged:
+            return _Candidate(*built, np.nan, corr)
+        return _Candidate(*built, correspondence=corr, **judging(built[0]))
 
     def hypothesis(k: int, tree: VesselTree, branch: int) -> _Candidate | None:
         """Matching ``k``'s tree built again with the pairing of its branch ``branch`` avoided."""
@@ -990,13 +1022,17 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
                                       bridge, settings_of(corr), avoid)
         except ReconstructionError:  # no tree without that branch's pairing: no hypothesis
             return None
-        return _Candidate(*built, agreeing(built[0]), other, float(b.length_mm))
+        return _Candidate(*built, correspondence=other, avoided_mm=float(b.length_mm), **judging(built[0]))
 
     trees = dict(zip(todo, _in_two_processes([lambda k=k: tree_of(k) for k in todo], settings.fork_alternatives)))
-    agreement = []
+    own_length_mm = float(np.mean([trees[k].length_mm for k in todo]))
+    for k in todo:
+        trees[k].score = trees[k].judged(settings, own_length_mm) if judged else np.nan
+    agreement, score = [], []
     for k in range(len(correspondences)):  # the same tree again, or none
-        agreement.append(trees[k].agreement if k in trees else agreement[same[k]] if same[k] is not None else -np.inf)
-    best = max((trees[k] for k in todo), key=lambda c: c.agreement)  # the first of equals
+        for out, key in ((agreement, "agreement"), (score, "score")):
+            out.append(getattr(trees[k], key) if k in trees else out[same[k]] if same[k] is not None else -np.inf)
+    best = max((trees[k] for k in todo), key=lambda c: c.score)  # the first of equals
     timings["agreement"] = agreement_s[0]
     timings["tree"] = time.perf_counter() - tree_start - timings["agreement"]
     hypotheses: list[_Candidate] = []
@@ -1010,17 +1046,19 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         built = _in_two_processes([lambda k=k, b=b: hypothesis(k, trees[k].tree, b) for k, b in tasks],
                                   settings.fork_alternatives)
         hypotheses = [h for h in built if h is not None]
-        bar = best.agreement + settings.hypothesis_margin
+        bar = best.score + settings.hypothesis_margin
         for h in hypotheses:
-            if h.agreement >= bar and h.agreement > best.agreement:
+            h.score = h.judged(settings, own_length_mm)
+            if h.score >= bar and h.score > best.score:
                 best = h
     if judged:  # their matchings, trees and agreement
         timings["hypotheses"] = time.perf_counter() - start
     if judged:
         tried = (f"; {len(hypotheses)} hypotheses of a wrong pairing: "
-                 + ", ".join(f"{h.agreement:.4f}" for h in hypotheses)) if hypotheses else ""
-        say(f"trees' agreement with the masks (mean Dice over the views): "
-            + ", ".join(f"claim cost {c.claim_cost:g}: {a:.4f}" for c, a in zip(correspondences, agreement))
+                 + ", ".join(f"{h.agreement:.4f} ({h.score:.4f})" for h in hypotheses)) if hypotheses else ""
+        say(f"trees' agreement with the masks (mean Dice over the views; judged, less the lengths' penalty): "
+            + ", ".join(f"claim cost {c.claim_cost:g}: {a:.4f} ({j:.4f})"
+                        for c, a, j in zip(correspondences, agreement, score))
             + tried + f"; kept claim cost {best.correspondence.claim_cost:g}"
             + (f", the tree without the pairing of a {best.avoided_mm:.0f} mm branch" if best.avoided_mm else ""))
     else:
@@ -1043,7 +1081,9 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
                        replaced_branches=counts["replaced"], tree_build=tree_build, timings_s=timings,
                        claim_costs=tuple(c.claim_cost for c in correspondences) if judged else (),
                        mask_agreement=tuple(agreement) if judged else (),
+                       judged_score=tuple(score) if judged else (),
                        kept_claim_cost=kept.claim_cost if judged else None,
-                       hypotheses=tuple((h.correspondence.claim_cost, h.avoided_mm, h.agreement) for h in hypotheses),
+                       hypotheses=tuple((h.correspondence.claim_cost, h.avoided_mm, h.agreement, h.score)
+                                        for h in hypotheses),
                        kept_hypothesis=next((j for j, h in enumerate(hypotheses) if h is best), None))
     return lumen, tree, build
