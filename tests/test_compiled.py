@@ -292,3 +292,48 @@ def test_the_environment_switch_and_status():
     with compiled.disabled():
         assert compiled.kernels() is None
     assert compiled.kernels() is not None
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_junction_wrong_pixels_equal_the_numpy_path_and_their_definition(seed):
+    """Random candidate and tree discs over random windows and strides of a mask, some centres on
+    half pixels and radii whole (distances on the radii): the compiled counts equal the NumPy
+    code's (k-d trees) and the counts by definition, every grid pixel against every disc."""
+    from angiohull.reconstruction.vessel_tree import _wrong_pixels
+
+    rng = np.random.default_rng(seed)
+    for trial in range(40):
+        image = (rng.random((50, 60)) < 0.5).astype(np.float32) if trial % 2 else rng.random((50, 60)).astype(np.float32)
+        lo = rng.integers(0, 20, 2)
+        hi = np.minimum(lo + rng.integers(1, 40, 2), (60, 50))
+        stride = int(rng.integers(1, 4))
+        n_candidates = int(rng.integers(1, 6))
+        n, m = int(rng.integers(1, 50)), int(rng.integers(0, 30))
+        uv, others_uv = rng.uniform(-5, 65, (n, 2)), rng.uniform(-5, 65, (m, 2))
+        radius_px, others_px = rng.uniform(0.3, 9.0, n), rng.uniform(0.3, 9.0, m)
+        if trial % 3 == 0:
+            uv, others_uv = np.round(2 * uv) / 2, np.round(2 * others_uv) / 2
+            radius_px, others_px = np.round(radius_px) + 0.0, np.round(others_px) + 0.0
+        owner = np.sort(rng.integers(0, n_candidates, n))
+
+        got, reference = _both(lambda: _wrong_pixels(image, lo, hi, stride, uv, radius_px, owner, n_candidates,
+                                                     others_uv, others_px))
+        assert got.dtype == reference.dtype
+        np.testing.assert_array_equal(got, reference)
+
+        v, u = np.mgrid[lo[1]:hi[1]:stride, lo[0]:hi[0]:stride]
+        pixels = np.column_stack([u.ravel(), v.ravel()]).astype(np.float64)
+
+        def inside_discs(centres, radii):  # (pixels, discs): as the k-d tree pairs them, then each radius
+            if len(centres) == 0:
+                return np.zeros((len(pixels), 0), dtype=bool)
+            d = ((pixels[:, None, 0] - centres[None, :, 0]) ** 2 + (pixels[:, None, 1] - centres[None, :, 1]) ** 2)
+            return (d <= radii.max() ** 2) & (np.sqrt(d) <= radii[None, :])
+
+        hits = inside_discs(uv, radius_px)
+        covers = np.stack([hits[:, owner == c].any(axis=1) for c in range(n_candidates)], axis=1)
+        rest = inside_discs(others_uv, others_px).any(axis=1)
+        reached = covers.any(axis=1)
+        inside = image[v.ravel(), u.ravel()] >= 0.5
+        expected = ((covers | rest[:, None]) != inside[:, None])[reached].sum(axis=0)
+        np.testing.assert_array_equal(got, expected)

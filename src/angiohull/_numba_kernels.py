@@ -777,3 +777,80 @@ def balls_on_lattice(centres, radii, margin, axis, half, h, lo, shape):  # pragm
                 for kk in range(max(k_lo, lo[2]), min(k_hi, lo[2] + shape[2] - 1) + 1):
                     volume[i - lo[0], j - lo[1], kk - lo[2]] = True
     return volume
+
+
+# --- the tree method's junctions (angiohull.reconstruction.vessel_tree) ---------------------------
+
+@numba.njit(**_JIT)
+def _grid_span(c, reach, lo, stride, n):  # pragma: no cover - compiled
+    """The first and last index ``k`` (0 <= k < n) of the grid ``lo + stride * k`` that may lie
+    within ``reach`` of ``c``: one index more on either side than the division says (the distance
+    test decides); ``(0, -1)`` where none."""
+    x0 = np.floor((c - reach - lo) / stride) - 1.0
+    x1 = np.floor((c + reach - lo) / stride) + 1.0
+    if not (x0 <= n - 1 and x1 >= 0):  # (also a nan centre)
+        return 0, -1
+    return max(np.int64(x0), 0), min(np.int64(x1), n - 1)
+
+
+@numba.njit(**_JIT)
+def tube_wrong_pixels(image, lo_u, lo_v, n_u, n_v, stride, uv, radius_px, owner, n_candidates, others_uv,
+                      others_px):  # pragma: no cover - compiled
+    """Per candidate, the pixels of the grid ``(lo_u + stride * a, lo_v + stride * b)`` (``a <
+    n_u``, ``b < n_v``) that some candidate's disc covers and where the candidate's discs with the
+    discs ``others_uv`` disagree with ``image`` (>= 0.5 inside), as
+    :func:`angiohull.reconstruction.vessel_tree._wrong_pixels` counts them. A pixel lies in a disc
+    as scipy's k-d tree pairs them there (``sparse_distance_matrix`` up to the largest radius, then
+    the disc's own): the squared distance ``du * du + dv * dv`` (pixel minus centre) at most the
+    largest radius squared, and its square root at most the disc's radius."""
+    size = n_u * n_v
+    covers = np.zeros((size, n_candidates), np.bool_)
+    reached = np.zeros(size, np.bool_)
+    if uv.shape[0] > 0:
+        reach = radius_px.max()
+        bound = reach * reach
+        for k in range(uv.shape[0]):
+            cu = uv[k, 0]
+            cv = uv[k, 1]
+            a0, a1 = _grid_span(cu, reach, lo_u, stride, n_u)
+            b0, b1 = _grid_span(cv, reach, lo_v, stride, n_v)
+            for b in range(b0, b1 + 1):
+                dv = np.float64(lo_v + stride * b) - cv
+                for a in range(a0, a1 + 1):
+                    du = np.float64(lo_u + stride * a) - cu
+                    d = du * du + dv * dv
+                    if d <= bound and np.sqrt(d) <= radius_px[k]:
+                        covers[b * n_u + a, owner[k]] = True
+                        reached[b * n_u + a] = True
+    rest = np.zeros(size, np.bool_)
+    if others_uv.shape[0] > 0:
+        reach = others_px.max()
+        bound = reach * reach
+        for k in range(others_uv.shape[0]):
+            cu = others_uv[k, 0]
+            cv = others_uv[k, 1]
+            a0, a1 = _grid_span(cu, reach, lo_u, stride, n_u)
+            b0, b1 = _grid_span(cv, reach, lo_v, stride, n_v)
+            for b in range(b0, b1 + 1):
+                dv = np.float64(lo_v + stride * b) - cv
+                for a in range(a0, a1 + 1):
+                    if reached[b * n_u + a]:
+                        du = np.float64(lo_u + stride * a) - cu
+                        d = du * du + dv * dv
+                        if d <= bound and np.sqrt(d) <= others_px[k]:
+                            rest[b * n_u + a] = True
+    counts = np.zeros(n_candidates, np.int64)
+    for p in range(size):
+        if not reached[p]:
+            continue
+        b = p // n_u
+        inside = image[lo_v + stride * b, lo_u + stride * (p - b * n_u)] >= 0.5
+        if rest[p]:  # covered whichever candidate joins
+            if not inside:
+                for c in range(n_candidates):
+                    counts[c] += 1
+        else:
+            for c in range(n_candidates):
+                if covers[p, c] != inside:
+                    counts[c] += 1
+    return counts
