@@ -337,3 +337,57 @@ def test_junction_wrong_pixels_equal_the_numpy_path_and_their_definition(seed):
         inside = image[v.ravel(), u.ravel()] >= 0.5
         expected = ((covers | rest[:, None]) != inside[:, None])[reached].sum(axis=0)
         np.testing.assert_array_equal(got, expected)
+
+
+def test_bilinear_samples_equal_map_coordinates_inside_on_and_past_the_borders():
+    """The runs kernel's samples: scipy's order-1 ``map_coordinates`` (constant 0 outside), float32,
+    bit for bit, on random and binary images of every small size, coordinates on and past the
+    last row and column, whole and nan."""
+    from scipy import ndimage
+
+    bilinear = compiled.kernels()._bilinear
+    rng = np.random.default_rng(0)
+    for trial in range(60):
+        rows, cols = int(rng.integers(1, 25)), int(rng.integers(1, 25))
+        image = (rng.random((rows, cols)) < 0.5 if trial % 2 else rng.random((rows, cols))).astype(np.float32)
+        v, u = rng.uniform(-2, rows + 1, 300), rng.uniform(-2, cols + 1, 300)
+        v[:40], u[40:80] = np.round(v[:40]), np.round(u[40:80])
+        v[80:90], u[90:100], v[100:105], u[105:110] = rows - 1, cols - 1, -1e-12, cols - 1 + 1e-12
+        v[110:115] = np.nan
+        expected = ndimage.map_coordinates(image, [v, u], order=1, mode="constant", cval=0.0)
+        got = np.array([bilinear(image, a, b) for a, b in zip(v, u)], dtype=np.float32)
+        np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_cross_section_runs_equal_the_numpy_path(seed):
+    """Points on, beside and off random thick lines (binary masks and blurred ones), some past the
+    image's edges, with random normals (some along the axes) and reaches: the same runs found and
+    the same edges as the NumPy code's binned profiles, bit for bit."""
+    from scipy import ndimage
+
+    from angiohull.reconstruction.vessel_tree import _all_runs
+
+    rng = np.random.default_rng(seed)
+    rows, cols = 80, 90
+    y, x = np.mgrid[:rows, :cols]
+    for trial in range(20):
+        image = np.zeros((rows, cols), np.float32)
+        for _ in range(int(rng.integers(1, 6))):
+            centre, angle, radius = rng.uniform(0, [cols, rows]), rng.uniform(0, np.pi), rng.uniform(0.5, 8.0)
+            image[np.abs((x - centre[0]) * np.sin(angle) - (y - centre[1]) * np.cos(angle)) <= radius] = 1.0
+        if trial % 3 == 0:
+            image = ndimage.gaussian_filter(image, 1.0).astype(np.float32)
+        uv = rng.uniform(-5, [cols + 5, rows + 5], (300, 2))
+        if trial % 2:
+            uv = np.round(2 * uv) / 2
+        angle = rng.uniform(0, 2 * np.pi, 300)
+        normal = np.column_stack([np.cos(angle), np.sin(angle)])
+        if trial % 4 == 0:
+            normal = np.round(normal)
+        reach = np.clip(rng.uniform(0, 40, 300), 6.0, 384.0)
+        got, reference = _both(lambda: _all_runs(image, uv, normal, reach, 0.5))
+        for a, b in zip(got, reference):
+            assert a.dtype == b.dtype
+            np.testing.assert_array_equal(a, b)
+        assert got[0].any() and not got[0].all()

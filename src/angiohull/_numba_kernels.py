@@ -854,3 +854,96 @@ def tube_wrong_pixels(image, lo_u, lo_v, n_u, n_v, stride, uv, radius_px, owner,
                 if covers[p, c] != inside:
                     counts[c] += 1
     return counts
+
+
+# --- the tree method's cross-sections (angiohull.reconstruction.vessel_tree) ----------------------
+
+@numba.njit(**_JIT)
+def _bilinear(image, v, u):  # pragma: no cover - compiled
+    """``scipy.ndimage.map_coordinates(image, [[v], [u]], order=1, mode="constant", cval=0)`` as
+    float32, with its arithmetic: outside ``[0, size - 1]`` on an axis 0; else the weights ``1 - x``
+    and ``1 - (1 - x)`` of the fraction ``x``, the four corners summed row by row (the one past the
+    last row or column is the one before it, with weight 0)."""
+    rows, cols = image.shape
+    if not (v >= 0.0 and v <= rows - 1 and u >= 0.0 and u <= cols - 1):
+        return np.float32(0.0)
+    fv = np.floor(v)
+    fu = np.floor(u)
+    r = np.int64(fv)
+    c = np.int64(fu)
+    wv0 = 1.0 - (v - fv)
+    wv1 = 1.0 - wv0
+    wu0 = 1.0 - (u - fu)
+    wu1 = 1.0 - wu0
+    r1 = r + 1 if r + 1 < rows else max(rows - 2, 0)
+    c1 = c + 1 if c + 1 < cols else max(cols - 2, 0)
+    t = 0.0
+    t += np.float64(image[r, c]) * wv0 * wu0
+    t += np.float64(image[r, c1]) * wv0 * wu1
+    t += np.float64(image[r1, c]) * wv1 * wu0
+    t += np.float64(image[r1, c1]) * wv1 * wu1
+    return np.float32(t)
+
+
+@numba.njit(**_JIT)
+def mask_runs(image, uv, normal, reach, step_px, seek_steps):  # pragma: no cover - compiled
+    """Per point, the run of ``image`` through it along its normal, as
+    :func:`angiohull.reconstruction.vessel_tree._runs` reads it from profiles sampled every
+    ``step_px`` (``step_px * k`` from the point, bilinearly): ``(found, left edge, right edge)``.
+    Only the samples the run needs are read: outward from the point to the first sample inside
+    (at most ``seek_steps`` away, nearest first, the lower side first on a tie), then on to the
+    first sample outside on either side, not beyond ``reach``; the edges are interpolated between
+    the samples on either side of the 0.5 crossing in float32, as NumPy does with the profile."""
+    n = uv.shape[0]
+    found = np.zeros(n, np.bool_)
+    left = np.full(n, np.nan)
+    right = np.full(n, np.nan)
+    half_value = np.float32(0.5)
+    tiny = np.float32(1e-9)
+    step32 = np.float32(step_px)
+    for i in range(n):
+        u0 = uv[i, 0]
+        v0 = uv[i, 1]
+        nu = normal[i, 0]
+        nv = normal[i, 1]
+        seed = 0
+        seeded = False
+        for d in range(seek_steps + 1):
+            for k in (-d, d):
+                s = step_px * np.float64(k)
+                if _bilinear(image, v0 + s * nv, u0 + s * nu) >= half_value:
+                    seed = k
+                    seeded = True
+                    break
+            if seeded:
+                break
+        if not seeded:
+            continue
+        # the last sample outside before the seed, within the reach
+        k = seed - 1
+        p_in = _bilinear(image, v0 + (step_px * np.float64(seed)) * nv, u0 + (step_px * np.float64(seed)) * nu)
+        found_left = False
+        while step_px * np.float64(k) >= -reach[i]:
+            s = step_px * np.float64(k)
+            p_out = _bilinear(image, v0 + s * nv, u0 + s * nu)
+            if not (p_out >= half_value):
+                found_left = True
+                left[i] = s + np.float64((half_value - p_out) / max(p_in - p_out, tiny) * step32)
+                break
+            p_in = p_out
+            k -= 1
+        k = seed + 1
+        p_in = _bilinear(image, v0 + (step_px * np.float64(seed)) * nv, u0 + (step_px * np.float64(seed)) * nu)
+        found_right = False
+        while step_px * np.float64(k) <= reach[i]:
+            s = step_px * np.float64(k)
+            p_out = _bilinear(image, v0 + s * nv, u0 + s * nu)
+            if not (p_out >= half_value):
+                found_right = True
+                right[i] = step_px * np.float64(k - 1) + np.float64((p_in - half_value) / max(p_in - p_out, tiny)
+                                                                     * step32)
+                break
+            p_in = p_out
+            k += 1
+        found[i] = found_left and found_right
+    return found, left, right

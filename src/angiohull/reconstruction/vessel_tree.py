@@ -590,6 +590,27 @@ def _runs(image: np.ndarray, uv: np.ndarray, normal: np.ndarray, reach: np.ndarr
     return found_left & found_right, np.where(found_left, left_edge, np.nan), np.where(found_right, right_edge, np.nan)
 
 
+def _all_runs(image: np.ndarray, uv: np.ndarray, normal: np.ndarray, reach: np.ndarray,
+              step_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_runs` of every point: the points in bins of similar reach, each bin's profiles as
+    long as its longest reach. A run depends on the samples within its own reach alone, so the
+    compiled kernel reads each point's samples outward from it, only as far as the run goes (the
+    same samples, the same values)."""
+    compiled = kernels()
+    if compiled is not None:
+        return compiled.mask_runs(image, np.ascontiguousarray(uv, dtype=np.float64),
+                                  np.ascontiguousarray(normal, dtype=np.float64),
+                                  np.ascontiguousarray(reach, dtype=np.float64), float(step_px),
+                                  int(round(_SEEK_PX / step_px)))
+    n = len(uv)
+    found, left, right = np.zeros(n, dtype=bool), np.full(n, np.nan), np.full(n, np.nan)
+    bins = np.searchsorted(_REACH_BINS_PX, reach)
+    for b in np.unique(bins):
+        sel = np.flatnonzero(bins == b)
+        found[sel], left[sel], right[sel] = _runs(image, uv[sel], normal[sel], reach[sel], step_px)
+    return found, left, right
+
+
 def _sections(points: np.ndarray, tangents: np.ndarray, radius: np.ndarray, projections: Sequence[Projection],
               images: Sequence[np.ndarray], step_px: float) -> _Sections:
     n = len(points)
@@ -606,11 +627,7 @@ def _sections(points: np.ndarray, tangents: np.ndarray, radius: np.ndarray, proj
         normal = np.column_stack([-direction[:, 1], direction[:, 0]])
         # a run up to 2.5 radii + 4 px either side (the radius may still be the hull's, too wide)
         reach = np.clip(2.5 * radius * px_per_mm + 4.0, 6.0, _REACH_BINS_PX[-1])
-        found, left, right = np.zeros(n, dtype=bool), np.full(n, np.nan), np.full(n, np.nan)
-        bins = np.searchsorted(_REACH_BINS_PX, reach)
-        for b in np.unique(bins):
-            sel = np.flatnonzero(bins == b)
-            found[sel], left[sel], right[sel] = _runs(image, uv[sel], normal[sel], reach[sel], step_px)
+        found, left, right = _all_runs(image, uv, normal, reach, step_px)
         out["found"].append(found)
         out["width_px"].append(np.where(found, right - left, np.nan))
         out["offset_px"].append(np.where(found, 0.5 * (left + right), np.nan))
