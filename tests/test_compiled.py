@@ -391,3 +391,29 @@ def test_cross_section_runs_equal_the_numpy_path(seed):
             assert a.dtype == b.dtype
             np.testing.assert_array_equal(a, b)
         assert got[0].any() and not got[0].all()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_forest_states_equal_the_numpy_path(seed):
+    """Random forests (levels of random sizes, parents in the level above, several children to a
+    parent), random costs with infinities and ties (costs on a coarse grid): the pixel matching's
+    states, compiled and NumPy, are the same."""
+    from angiohull.reconstruction.model.matching import _forest_states
+
+    rng = np.random.default_rng(seed)
+    for trial in range(30):
+        states = int(rng.integers(2, 9))
+        sizes = rng.integers(1, 12, int(rng.integers(1, 15)))
+        levels = list(np.split(rng.permutation(int(sizes.sum())), np.cumsum(sizes)[:-1]))
+        parent = np.full(int(sizes.sum()), -1, dtype=np.int64)
+        for above, level in zip(levels, levels[1:]):
+            parent[level] = rng.choice(above, len(level))
+        unary = rng.uniform(0, 5, (len(parent), states))
+        every = rng.uniform(0, 5, (int(sizes[1:].sum()), states, states))
+        if trial % 2:
+            unary, every = np.round(unary), np.round(every)  # ties
+        unary[rng.random(unary.shape) < 0.2] = np.inf
+        offset = np.concatenate([[0], np.cumsum(sizes[1:])]).astype(np.int64)
+        got, reference = _both(lambda: _forest_states(unary, every, offset, levels, parent))
+        assert got.dtype == reference.dtype
+        np.testing.assert_array_equal(got, reference)

@@ -947,3 +947,51 @@ def mask_runs(image, uv, normal, reach, step_px, seek_steps):  # pragma: no cove
             k += 1
         found[i] = found_left and found_right
     return found, left, right
+
+
+# --- the tree method's pixel matching (angiohull.reconstruction.model.matching) ------------------
+
+@numba.njit(**_JIT)
+def _first_least(values):  # pragma: no cover - compiled
+    """``np.argmin(values)``: the first least value's index, or the first nan's."""
+    choice = 0
+    best = values[0]
+    for c in range(1, values.size):
+        v = values[c]
+        if not np.isnan(best) and (v < best or np.isnan(v)):
+            best = v
+            choice = c
+    return choice
+
+
+@numba.njit(**_JIT)
+def forest_states(unary, every, offset, order, start, parent):  # pragma: no cover - compiled
+    """:func:`angiohull.reconstruction.model.matching._forest_states` with the levels flat
+    (``order[start[d]:start[d + 1]]``: level d's pixels): per pixel of a level, from the deepest
+    up, and parent state, the child state of least ``total + transition`` (the first of equal
+    ones, as argmin), that sum added to the parent's total in the level's order (as ``np.add.at``);
+    then the roots' least totals and each level's choices below its parents' states."""
+    n, states = unary.shape
+    total = unary.copy()
+    best_child = np.zeros((n, states), np.int64)
+    joint = np.empty(states)
+    for depth in range(start.size - 2, 0, -1):
+        base = offset[depth - 1] - start[depth]
+        for k in range(start[depth], start[depth + 1]):
+            p = order[k]
+            up = parent[p]
+            for b in range(states):
+                for c in range(states):
+                    joint[c] = total[p, c] + every[base + k, c, b]
+                choice = _first_least(joint)
+                best_child[p, b] = choice
+                total[up, b] += joint[choice]
+    state = np.zeros(n, np.int64)
+    if start.size > 1:
+        for k in range(start[0], start[1]):
+            state[order[k]] = _first_least(total[order[k]])
+    for depth in range(1, start.size - 1):
+        for k in range(start[depth], start[depth + 1]):
+            p = order[k]
+            state[p] = best_child[p, state[parent[p]]]
+    return state
