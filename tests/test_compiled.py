@@ -417,3 +417,38 @@ def test_forest_states_equal_the_numpy_path(seed):
         got, reference = _both(lambda: _forest_states(unary, every, offset, levels, parent))
         assert got.dtype == reference.dtype
         np.testing.assert_array_equal(got, reference)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_spoiled_runs_equal_the_numpy_path(seed):
+    """Random branches crossing in the image (polylines, some looping), random radii, scales and
+    normals, with and without the image-path rule and the sides: the runs spoiled by other discs,
+    compiled and NumPy (k-d tree pairs), are the same."""
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _overlaps, _Sections
+
+    rng = np.random.default_rng(seed)
+    for trial in range(12):
+        counts = rng.integers(2, 60, int(rng.integers(1, 7)))
+        points = np.concatenate([np.cumsum(rng.normal(0, 0.5, (c, 3)), axis=0) + rng.uniform(-5, 5, 3)
+                                 for c in counts])
+        n = len(points)
+        arrays = _Arrays(points, rng.uniform(0.2, 2.5, n), np.cumsum(counts) - counts, counts,
+                         [None] + [0] * (len(counts) - 1), [None] + [0] * (len(counts) - 1),
+                         [f"b{b}" for b in range(len(counts))])
+        views = int(rng.integers(1, 4))
+        uv = rng.uniform(0, 6, (views, n, 2)) + np.cumsum(rng.normal(0, 1.0, (views, n, 2)), axis=1)
+        if trial % 3 == 0:
+            uv = np.round(2 * uv) / 2
+        angle = rng.uniform(0, 2 * np.pi, (views, n))
+        sections = _Sections(found=np.ones((views, n), dtype=bool), width_px=np.zeros((views, n)),
+                             offset_px=np.zeros((views, n)),
+                             normal_px=np.stack([np.cos(angle), np.sin(angle)], axis=-1),
+                             gradient=np.zeros((views, n, 3)), px_per_mm=rng.uniform(1.0, 4.0, (views, n)),
+                             foreshortening=np.ones((views, n)), uv=uv)
+        for image_path in (False, True):
+            for sides in (False, True):
+                got, reference = _both(lambda: _overlaps(sections, arrays, TREE_SETTINGS, image_path=image_path,
+                                                         sides=sides))
+                for a, b in zip(got if sides else [got], reference if sides else [reference]):
+                    np.testing.assert_array_equal(a, b)
+                assert (got[0] if sides else got).any()

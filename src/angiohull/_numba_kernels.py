@@ -995,3 +995,87 @@ def forest_states(unary, every, offset, order, start, parent):  # pragma: no cov
             p = order[k]
             state[p] = best_child[p, state[parent[p]]]
     return state
+
+
+# --- the tree method's spoiled cross-sections (angiohull.reconstruction.vessel_tree) -------------
+
+@numba.njit(**_JIT)
+def spoiled_runs(uv, rho, normal, arc, radius, owner, image_arc, margin_px, margin_mm, image_path, sides, out,
+                 left, right):  # pragma: no cover - compiled
+    """One view of :func:`angiohull.reconstruction.vessel_tree._overlaps`, in place on its rows
+    ``out``, ``left`` and ``right``: the pairs ``i < j`` whose squared distance (``j`` minus
+    ``i``) is less than ``(rho_i + rho_j + margin_px)**2`` (all of them within the k-d tree's
+    search radius ``2 max(rho) + margin_px``, so the same pairs), of two branches or a loop (arc,
+    and with ``image_path`` image arc, apart by more than the two radii and the margin), and each
+    point's run crossed by the other's disc, with the same arithmetic pair by pair. The pairs are
+    found in square cells a little wider than the search radius."""
+    n = uv.shape[0]
+    if n < 2:
+        return
+    widest = rho[0]
+    lo0 = uv[0, 0]
+    lo1 = uv[0, 1]
+    hi0 = lo0
+    hi1 = lo1
+    for p in range(n):
+        widest = max(widest, rho[p])
+        lo0 = min(lo0, uv[p, 0])
+        hi0 = max(hi0, uv[p, 0])
+        lo1 = min(lo1, uv[p, 1])
+        hi1 = max(hi1, uv[p, 1])
+    cell = max((2.0 * widest + margin_px) * (1.0 + 1e-6), 1e-300)
+    while ((hi0 - lo0) / cell + 1.0) * ((hi1 - lo1) / cell + 1.0) > 4.0 * n + 64.0:
+        cell *= 2.0
+    n0 = int((hi0 - lo0) / cell) + 1
+    n1 = int((hi1 - lo1) / cell) + 1
+    where = np.empty(n, np.int64)
+    start = np.zeros(n0 * n1 + 1, np.int64)
+    for p in range(n):
+        c = min(int((uv[p, 0] - lo0) / cell), n0 - 1) * n1 + min(int((uv[p, 1] - lo1) / cell), n1 - 1)
+        where[p] = c
+        start[c + 1] += 1
+    for c in range(n0 * n1):
+        start[c + 1] += start[c]
+    order = np.empty(n, np.int64)
+    fill = start[:-1].copy()
+    for p in range(n):
+        order[fill[where[p]]] = p
+        fill[where[p]] += 1
+    for i in range(n):
+        a0 = where[i] // n1
+        b0 = where[i] - a0 * n1
+        for ca in range(max(a0 - 1, 0), min(a0 + 1, n0 - 1) + 1):
+            for cb in range(max(b0 - 1, 0), min(b0 + 1, n1 - 1) + 1):
+                c = ca * n1 + cb
+                for m in range(start[c], start[c + 1]):
+                    j = order[m]
+                    if j <= i:
+                        continue
+                    du = uv[j, 0] - uv[i, 0]
+                    dv = uv[j, 1] - uv[i, 1]
+                    s = rho[i] + rho[j] + margin_px
+                    if not (du * du + dv * dv < s * s):
+                        continue
+                    loop = abs(arc[i] - arc[j]) > radius[i] + radius[j] + margin_mm
+                    if image_path:
+                        loop = loop and abs(image_arc[i] - image_arc[j]) > rho[i] + rho[j] + margin_px
+                    if not (owner[i] != owner[j] or loop):
+                        continue
+                    for side in range(2):
+                        a = i if side == 0 else j
+                        b = j if side == 0 else i
+                        sign = 1.0 if side == 0 else -1.0
+                        nu = normal[a, 0]
+                        nv = normal[a, 1]
+                        across = sign * (nu * du + nv * dv)
+                        along = abs(nu * dv - nv * du)
+                        reach = rho[b] + margin_px
+                        chord = np.sqrt(max(reach * reach - along * along, 0.0))
+                        rho_a = rho[a]
+                        if along < reach and abs(across) - chord < rho_a:
+                            out[a] = True
+                            if sides:
+                                if across - chord < -rho_a:
+                                    left[a] = True
+                                if across + chord > rho_a:
+                                    right[a] = True

@@ -667,8 +667,21 @@ def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *,
     margin = settings.overlap_margin_px
     out = np.zeros((views, n), dtype=bool)
     left, right = np.zeros((views, n), dtype=bool), np.zeros((views, n), dtype=bool)
+    compiled = kernels()
     for k in range(views):
         rho = radius * sections.px_per_mm[k]
+        if compiled is not None:  # the same pairs, rules and arithmetic, pair by pair (see spoiled_runs)
+            if image_path:
+                step = np.linalg.norm(np.diff(sections.uv[k], axis=0), axis=1)
+                step[arrays.starts[1:] - 1] = 0.0
+                image_arc = np.concatenate([[0.0], np.cumsum(step)])
+            else:
+                image_arc = np.zeros(n)
+            compiled.spoiled_runs(np.ascontiguousarray(sections.uv[k]), np.ascontiguousarray(rho),
+                                  np.ascontiguousarray(sections.normal_px[k]), arc, np.ascontiguousarray(radius),
+                                  owner.astype(np.int64), image_arc, float(margin), float(settings.overlap_margin_mm),
+                                  bool(image_path), bool(sides), out[k], left[k], right[k])
+            continue
         pairs = cKDTree(sections.uv[k]).query_pairs(2.0 * float(rho.max()) + margin, output_type="ndarray")
         if len(pairs) == 0:
             continue
