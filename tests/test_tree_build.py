@@ -1147,3 +1147,18 @@ def test_joining_curves_built_together_equal_the_curves_built_one_by_one():
         one_by_one = [_joining_curve(j, child, first, step_mm) for j in junctions]
         np.testing.assert_array_equal(points, np.concatenate(one_by_one))
         np.testing.assert_array_equal(owner, np.repeat(np.arange(len(junctions)), [len(c) for c in one_by_one]))
+
+
+@pytest.mark.parametrize("shape", [(1, 3), (2, 1, 3), (1, 7, 3), (40, 1, 3), (9, 11, 3), (5, 12, 12, 3)])
+def test_norms_written_coordinate_by_coordinate_equal_numpys(shape):
+    """The tree build writes ``np.linalg.norm(x, axis=-1)`` of three coordinates as
+    ``sqrt((x0 * x0 + x1 * x1) + x2 * x2)`` where it is hot (the junction step's gaps, the
+    matching's jumps): NumPy adds the three squares in that order, whatever the shape, so the
+    two are equal bit for bit (if a NumPy changed its order, this says so)."""
+    rng = np.random.default_rng(len(shape))
+    for _ in range(50):
+        x = rng.normal(size=shape) * 10.0 ** rng.uniform(-3, 3)
+        np.testing.assert_array_equal(np.sqrt((x[..., 0] * x[..., 0] + x[..., 1] * x[..., 1]) + x[..., 2] * x[..., 2]),
+                                      np.linalg.norm(x, axis=-1))
+        np.testing.assert_array_equal(np.sqrt(x[..., 0] * x[..., 0] + x[..., 1] * x[..., 1]),
+                                      np.linalg.norm(x[..., :2], axis=-1))

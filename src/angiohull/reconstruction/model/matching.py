@@ -450,8 +450,13 @@ def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), sett
 
     def transition(child: np.ndarray, up: np.ndarray) -> np.ndarray:
         """(n, C+1, C+1) cost of (child state, parent state)."""
-        step_px = np.linalg.norm(g.uv_px[child] - g.uv_px[up], axis=1)
-        jump = np.linalg.norm(point[child][:, :, None, :] - point[up][:, None, :, :], axis=3)
+        # the norms coordinate by coordinate: np.linalg.norm's squares added in the same order,
+        # without its strided reduction over the last axis
+        du, dv = (g.uv_px[child, k] - g.uv_px[up, k] for k in range(2))
+        step_px = np.sqrt(du * du + dv * dv)
+        at_child, at_up = point[child], point[up]
+        dx, dy, dz = (at_child[:, :, None, k] - at_up[:, None, :, k] for k in range(3))
+        jump = np.sqrt((dx * dx + dy * dy) + dz * dz)
         ds = np.maximum(step_px[:, None, None] * scale[up][:, None, :], 1e-6)
         cost = s.jump_weight * np.maximum(jump / ds - s.max_stretch, 0.0)
         switch = chain_b[child][:, :, None] != chain_b[up][:, None, :]
