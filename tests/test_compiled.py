@@ -292,3 +292,163 @@ def test_the_environment_switch_and_status():
     with compiled.disabled():
         assert compiled.kernels() is None
     assert compiled.kernels() is not None
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_junction_wrong_pixels_equal_the_numpy_path_and_their_definition(seed):
+    """Random candidate and tree discs over random windows and strides of a mask, some centres on
+    half pixels and radii whole (distances on the radii): the compiled counts equal the NumPy
+    code's (k-d trees) and the counts by definition, every grid pixel against every disc."""
+    from angiohull.reconstruction.vessel_tree import _wrong_pixels
+
+    rng = np.random.default_rng(seed)
+    for trial in range(40):
+        image = (rng.random((50, 60)) < 0.5).astype(np.float32) if trial % 2 else rng.random((50, 60)).astype(np.float32)
+        lo = rng.integers(0, 20, 2)
+        hi = np.minimum(lo + rng.integers(1, 40, 2), (60, 50))
+        stride = int(rng.integers(1, 4))
+        n_candidates = int(rng.integers(1, 6))
+        n, m = int(rng.integers(1, 50)), int(rng.integers(0, 30))
+        uv, others_uv = rng.uniform(-5, 65, (n, 2)), rng.uniform(-5, 65, (m, 2))
+        radius_px, others_px = rng.uniform(0.3, 9.0, n), rng.uniform(0.3, 9.0, m)
+        if trial % 3 == 0:
+            uv, others_uv = np.round(2 * uv) / 2, np.round(2 * others_uv) / 2
+            radius_px, others_px = np.round(radius_px) + 0.0, np.round(others_px) + 0.0
+        owner = np.sort(rng.integers(0, n_candidates, n))
+
+        got, reference = _both(lambda: _wrong_pixels(image, lo, hi, stride, uv, radius_px, owner, n_candidates,
+                                                     others_uv, others_px))
+        assert got.dtype == reference.dtype
+        np.testing.assert_array_equal(got, reference)
+
+        v, u = np.mgrid[lo[1]:hi[1]:stride, lo[0]:hi[0]:stride]
+        pixels = np.column_stack([u.ravel(), v.ravel()]).astype(np.float64)
+
+        def inside_discs(centres, radii):  # (pixels, discs): as the k-d tree pairs them, then each radius
+            if len(centres) == 0:
+                return np.zeros((len(pixels), 0), dtype=bool)
+            d = ((pixels[:, None, 0] - centres[None, :, 0]) ** 2 + (pixels[:, None, 1] - centres[None, :, 1]) ** 2)
+            return (d <= radii.max() ** 2) & (np.sqrt(d) <= radii[None, :])
+
+        hits = inside_discs(uv, radius_px)
+        covers = np.stack([hits[:, owner == c].any(axis=1) for c in range(n_candidates)], axis=1)
+        rest = inside_discs(others_uv, others_px).any(axis=1)
+        reached = covers.any(axis=1)
+        inside = image[v.ravel(), u.ravel()] >= 0.5
+        expected = ((covers | rest[:, None]) != inside[:, None])[reached].sum(axis=0)
+        np.testing.assert_array_equal(got, expected)
+
+
+def test_bilinear_samples_equal_map_coordinates_inside_on_and_past_the_borders():
+    """The runs kernel's samples: scipy's order-1 ``map_coordinates`` (constant 0 outside), float32,
+    bit for bit, on random and binary images of every small size, coordinates on and past the
+    last row and column, whole and nan."""
+    from scipy import ndimage
+
+    bilinear = compiled.kernels()._bilinear
+    rng = np.random.default_rng(0)
+    for trial in range(60):
+        rows, cols = int(rng.integers(1, 25)), int(rng.integers(1, 25))
+        image = (rng.random((rows, cols)) < 0.5 if trial % 2 else rng.random((rows, cols))).astype(np.float32)
+        v, u = rng.uniform(-2, rows + 1, 300), rng.uniform(-2, cols + 1, 300)
+        v[:40], u[40:80] = np.round(v[:40]), np.round(u[40:80])
+        v[80:90], u[90:100], v[100:105], u[105:110] = rows - 1, cols - 1, -1e-12, cols - 1 + 1e-12
+        v[110:115] = np.nan
+        expected = ndimage.map_coordinates(image, [v, u], order=1, mode="constant", cval=0.0)
+        got = np.array([bilinear(image, a, b) for a, b in zip(v, u)], dtype=np.float32)
+        np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_cross_section_runs_equal_the_numpy_path(seed):
+    """Points on, beside and off random thick lines (binary masks and blurred ones), some past the
+    image's edges, with random normals (some along the axes) and reaches: the same runs found and
+    the same edges as the NumPy code's binned profiles, bit for bit."""
+    from scipy import ndimage
+
+    from angiohull.reconstruction.vessel_tree import _all_runs
+
+    rng = np.random.default_rng(seed)
+    rows, cols = 80, 90
+    y, x = np.mgrid[:rows, :cols]
+    for trial in range(20):
+        image = np.zeros((rows, cols), np.float32)
+        for _ in range(int(rng.integers(1, 6))):
+            centre, angle, radius = rng.uniform(0, [cols, rows]), rng.uniform(0, np.pi), rng.uniform(0.5, 8.0)
+            image[np.abs((x - centre[0]) * np.sin(angle) - (y - centre[1]) * np.cos(angle)) <= radius] = 1.0
+        if trial % 3 == 0:
+            image = ndimage.gaussian_filter(image, 1.0).astype(np.float32)
+        uv = rng.uniform(-5, [cols + 5, rows + 5], (300, 2))
+        if trial % 2:
+            uv = np.round(2 * uv) / 2
+        angle = rng.uniform(0, 2 * np.pi, 300)
+        normal = np.column_stack([np.cos(angle), np.sin(angle)])
+        if trial % 4 == 0:
+            normal = np.round(normal)
+        reach = np.clip(rng.uniform(0, 40, 300), 6.0, 384.0)
+        got, reference = _both(lambda: _all_runs(image, uv, normal, reach, 0.5))
+        for a, b in zip(got, reference):
+            assert a.dtype == b.dtype
+            np.testing.assert_array_equal(a, b)
+        assert got[0].any() and not got[0].all()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_forest_states_equal_the_numpy_path(seed):
+    """Random forests (levels of random sizes, parents in the level above, several children to a
+    parent), random costs with infinities and ties (costs on a coarse grid): the pixel matching's
+    states, compiled and NumPy, are the same."""
+    from angiohull.reconstruction.model.matching import _forest_states
+
+    rng = np.random.default_rng(seed)
+    for trial in range(30):
+        states = int(rng.integers(2, 9))
+        sizes = rng.integers(1, 12, int(rng.integers(1, 15)))
+        levels = list(np.split(rng.permutation(int(sizes.sum())), np.cumsum(sizes)[:-1]))
+        parent = np.full(int(sizes.sum()), -1, dtype=np.int64)
+        for above, level in zip(levels, levels[1:]):
+            parent[level] = rng.choice(above, len(level))
+        unary = rng.uniform(0, 5, (len(parent), states))
+        every = rng.uniform(0, 5, (int(sizes[1:].sum()), states, states))
+        if trial % 2:
+            unary, every = np.round(unary), np.round(every)  # ties
+        unary[rng.random(unary.shape) < 0.2] = np.inf
+        offset = np.concatenate([[0], np.cumsum(sizes[1:])]).astype(np.int64)
+        got, reference = _both(lambda: _forest_states(unary, every, offset, levels, parent))
+        assert got.dtype == reference.dtype
+        np.testing.assert_array_equal(got, reference)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_spoiled_runs_equal_the_numpy_path(seed):
+    """Random branches crossing in the image (polylines, some looping), random radii, scales and
+    normals, with and without the image-path rule and the sides: the runs spoiled by other discs,
+    compiled and NumPy (k-d tree pairs), are the same."""
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays, _overlaps, _Sections
+
+    rng = np.random.default_rng(seed)
+    for trial in range(12):
+        counts = rng.integers(2, 60, int(rng.integers(1, 7)))
+        points = np.concatenate([np.cumsum(rng.normal(0, 0.5, (c, 3)), axis=0) + rng.uniform(-5, 5, 3)
+                                 for c in counts])
+        n = len(points)
+        arrays = _Arrays(points, rng.uniform(0.2, 2.5, n), np.cumsum(counts) - counts, counts,
+                         [None] + [0] * (len(counts) - 1), [None] + [0] * (len(counts) - 1),
+                         [f"b{b}" for b in range(len(counts))])
+        views = int(rng.integers(1, 4))
+        uv = rng.uniform(0, 6, (views, n, 2)) + np.cumsum(rng.normal(0, 1.0, (views, n, 2)), axis=1)
+        if trial % 3 == 0:
+            uv = np.round(2 * uv) / 2
+        angle = rng.uniform(0, 2 * np.pi, (views, n))
+        sections = _Sections(found=np.ones((views, n), dtype=bool), width_px=np.zeros((views, n)),
+                             offset_px=np.zeros((views, n)),
+                             normal_px=np.stack([np.cos(angle), np.sin(angle)], axis=-1),
+                             gradient=np.zeros((views, n, 3)), px_per_mm=rng.uniform(1.0, 4.0, (views, n)),
+                             foreshortening=np.ones((views, n)), uv=uv)
+        for image_path in (False, True):
+            for sides in (False, True):
+                got, reference = _both(lambda: _overlaps(sections, arrays, TREE_SETTINGS, image_path=image_path,
+                                                         sides=sides))
+                for a, b in zip(got if sides else [got], reference if sides else [reference]):
+                    np.testing.assert_array_equal(a, b)
+                assert (got[0] if sides else got).any()

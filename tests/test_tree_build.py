@@ -1130,3 +1130,35 @@ def test_many_small_parts_join_nearest_first_through_each_other():
     assert info.parts == 1 + 3 * per_distance
     assert info.parts_joined == 2 * per_distance and info.parts_dropped == per_distance
     assert info.voxels_dropped == per_distance and tree.root.length_mm >= 79.0
+
+
+def test_joining_curves_built_together_equal_the_curves_built_one_by_one():
+    """The joining curves of all the junction candidates at once: the points of each candidate's
+    curve built alone, bit for bit (the silhouette rule compares the candidates through them)."""
+    from angiohull.reconstruction.vessel_tree import _joining_curve, _joining_curves
+
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        child = np.cumsum(rng.normal(size=(int(rng.integers(2, 30)), 3)) * rng.uniform(0.1, 3.0), axis=0)
+        first = int(rng.integers(0, len(child)))
+        junctions = child[0] + rng.normal(size=(int(rng.integers(1, 20)), 3)) * rng.uniform(0.01, 10.0)
+        step_mm = float(rng.uniform(0.05, 1.0))
+        points, owner = _joining_curves(junctions, child, first, step_mm)
+        one_by_one = [_joining_curve(j, child, first, step_mm) for j in junctions]
+        np.testing.assert_array_equal(points, np.concatenate(one_by_one))
+        np.testing.assert_array_equal(owner, np.repeat(np.arange(len(junctions)), [len(c) for c in one_by_one]))
+
+
+@pytest.mark.parametrize("shape", [(1, 3), (2, 1, 3), (1, 7, 3), (40, 1, 3), (9, 11, 3), (5, 12, 12, 3)])
+def test_norms_written_coordinate_by_coordinate_equal_numpys(shape):
+    """The tree build writes ``np.linalg.norm(x, axis=-1)`` of three coordinates as
+    ``sqrt((x0 * x0 + x1 * x1) + x2 * x2)`` where it is hot (the junction step's gaps, the
+    matching's jumps): NumPy adds the three squares in that order, whatever the shape, so the
+    two are equal bit for bit (if a NumPy changed its order, this says so)."""
+    rng = np.random.default_rng(len(shape))
+    for _ in range(50):
+        x = rng.normal(size=shape) * 10.0 ** rng.uniform(-3, 3)
+        np.testing.assert_array_equal(np.sqrt((x[..., 0] * x[..., 0] + x[..., 1] * x[..., 1]) + x[..., 2] * x[..., 2]),
+                                      np.linalg.norm(x, axis=-1))
+        np.testing.assert_array_equal(np.sqrt(x[..., 0] * x[..., 0] + x[..., 1] * x[..., 1]),
+                                      np.linalg.norm(x[..., :2], axis=-1))

@@ -777,3 +777,305 @@ def balls_on_lattice(centres, radii, margin, axis, half, h, lo, shape):  # pragm
                 for kk in range(max(k_lo, lo[2]), min(k_hi, lo[2] + shape[2] - 1) + 1):
                     volume[i - lo[0], j - lo[1], kk - lo[2]] = True
     return volume
+
+
+# --- the tree method's junctions (angiohull.reconstruction.vessel_tree) ---------------------------
+
+@numba.njit(**_JIT)
+def _grid_span(c, reach, lo, stride, n):  # pragma: no cover - compiled
+    """The first and last index ``k`` (0 <= k < n) of the grid ``lo + stride * k`` that may lie
+    within ``reach`` of ``c``: one index more on either side than the division says (the distance
+    test decides); ``(0, -1)`` where none."""
+    x0 = np.floor((c - reach - lo) / stride) - 1.0
+    x1 = np.floor((c + reach - lo) / stride) + 1.0
+    if not (x0 <= n - 1 and x1 >= 0):  # (also a nan centre)
+        return 0, -1
+    return max(np.int64(x0), 0), min(np.int64(x1), n - 1)
+
+
+@numba.njit(**_JIT)
+def tube_wrong_pixels(image, lo_u, lo_v, n_u, n_v, stride, uv, radius_px, owner, n_candidates, others_uv,
+                      others_px):  # pragma: no cover - compiled
+    """Per candidate, the pixels of the grid ``(lo_u + stride * a, lo_v + stride * b)`` (``a <
+    n_u``, ``b < n_v``) that some candidate's disc covers and where the candidate's discs with the
+    discs ``others_uv`` disagree with ``image`` (>= 0.5 inside), as
+    :func:`angiohull.reconstruction.vessel_tree._wrong_pixels` counts them. A pixel lies in a disc
+    as scipy's k-d tree pairs them there (``sparse_distance_matrix`` up to the largest radius, then
+    the disc's own): the squared distance ``du * du + dv * dv`` (pixel minus centre) at most the
+    largest radius squared, and its square root at most the disc's radius."""
+    size = n_u * n_v
+    covers = np.zeros((size, n_candidates), np.bool_)
+    reached = np.zeros(size, np.bool_)
+    if uv.shape[0] > 0:
+        reach = radius_px.max()
+        bound = reach * reach
+        for k in range(uv.shape[0]):
+            cu = uv[k, 0]
+            cv = uv[k, 1]
+            a0, a1 = _grid_span(cu, reach, lo_u, stride, n_u)
+            b0, b1 = _grid_span(cv, reach, lo_v, stride, n_v)
+            for b in range(b0, b1 + 1):
+                dv = np.float64(lo_v + stride * b) - cv
+                for a in range(a0, a1 + 1):
+                    du = np.float64(lo_u + stride * a) - cu
+                    d = du * du + dv * dv
+                    if d <= bound and np.sqrt(d) <= radius_px[k]:
+                        covers[b * n_u + a, owner[k]] = True
+                        reached[b * n_u + a] = True
+    rest = np.zeros(size, np.bool_)
+    if others_uv.shape[0] > 0:
+        reach = others_px.max()
+        bound = reach * reach
+        for k in range(others_uv.shape[0]):
+            cu = others_uv[k, 0]
+            cv = others_uv[k, 1]
+            a0, a1 = _grid_span(cu, reach, lo_u, stride, n_u)
+            b0, b1 = _grid_span(cv, reach, lo_v, stride, n_v)
+            for b in range(b0, b1 + 1):
+                dv = np.float64(lo_v + stride * b) - cv
+                for a in range(a0, a1 + 1):
+                    if reached[b * n_u + a]:
+                        du = np.float64(lo_u + stride * a) - cu
+                        d = du * du + dv * dv
+                        if d <= bound and np.sqrt(d) <= others_px[k]:
+                            rest[b * n_u + a] = True
+    counts = np.zeros(n_candidates, np.int64)
+    for p in range(size):
+        if not reached[p]:
+            continue
+        b = p // n_u
+        inside = image[lo_v + stride * b, lo_u + stride * (p - b * n_u)] >= 0.5
+        if rest[p]:  # covered whichever candidate joins
+            if not inside:
+                for c in range(n_candidates):
+                    counts[c] += 1
+        else:
+            for c in range(n_candidates):
+                if covers[p, c] != inside:
+                    counts[c] += 1
+    return counts
+
+
+# --- the tree method's cross-sections (angiohull.reconstruction.vessel_tree) ----------------------
+
+@numba.njit(**_JIT)
+def _bilinear(image, v, u):  # pragma: no cover - compiled
+    """``scipy.ndimage.map_coordinates(image, [[v], [u]], order=1, mode="constant", cval=0)`` as
+    float32, with its arithmetic: outside ``[0, size - 1]`` on an axis 0; else the weights ``1 - x``
+    and ``1 - (1 - x)`` of the fraction ``x``, the four corners summed row by row (the one past the
+    last row or column is the one before it, with weight 0)."""
+    rows, cols = image.shape
+    if not (v >= 0.0 and v <= rows - 1 and u >= 0.0 and u <= cols - 1):
+        return np.float32(0.0)
+    fv = np.floor(v)
+    fu = np.floor(u)
+    r = np.int64(fv)
+    c = np.int64(fu)
+    wv0 = 1.0 - (v - fv)
+    wv1 = 1.0 - wv0
+    wu0 = 1.0 - (u - fu)
+    wu1 = 1.0 - wu0
+    r1 = r + 1 if r + 1 < rows else max(rows - 2, 0)
+    c1 = c + 1 if c + 1 < cols else max(cols - 2, 0)
+    t = 0.0
+    t += np.float64(image[r, c]) * wv0 * wu0
+    t += np.float64(image[r, c1]) * wv0 * wu1
+    t += np.float64(image[r1, c]) * wv1 * wu0
+    t += np.float64(image[r1, c1]) * wv1 * wu1
+    return np.float32(t)
+
+
+@numba.njit(**_JIT)
+def mask_runs(image, uv, normal, reach, step_px, seek_steps):  # pragma: no cover - compiled
+    """Per point, the run of ``image`` through it along its normal, as
+    :func:`angiohull.reconstruction.vessel_tree._runs` reads it from profiles sampled every
+    ``step_px`` (``step_px * k`` from the point, bilinearly): ``(found, left edge, right edge)``.
+    Only the samples the run needs are read: outward from the point to the first sample inside
+    (at most ``seek_steps`` away, nearest first, the lower side first on a tie), then on to the
+    first sample outside on either side, not beyond ``reach``; the edges are interpolated between
+    the samples on either side of the 0.5 crossing in float32, as NumPy does with the profile."""
+    n = uv.shape[0]
+    found = np.zeros(n, np.bool_)
+    left = np.full(n, np.nan)
+    right = np.full(n, np.nan)
+    half_value = np.float32(0.5)
+    tiny = np.float32(1e-9)
+    step32 = np.float32(step_px)
+    for i in range(n):
+        u0 = uv[i, 0]
+        v0 = uv[i, 1]
+        nu = normal[i, 0]
+        nv = normal[i, 1]
+        seed = 0
+        seeded = False
+        for d in range(seek_steps + 1):
+            for k in (-d, d):
+                s = step_px * np.float64(k)
+                if _bilinear(image, v0 + s * nv, u0 + s * nu) >= half_value:
+                    seed = k
+                    seeded = True
+                    break
+            if seeded:
+                break
+        if not seeded:
+            continue
+        # the last sample outside before the seed, within the reach
+        k = seed - 1
+        p_in = _bilinear(image, v0 + (step_px * np.float64(seed)) * nv, u0 + (step_px * np.float64(seed)) * nu)
+        found_left = False
+        while step_px * np.float64(k) >= -reach[i]:
+            s = step_px * np.float64(k)
+            p_out = _bilinear(image, v0 + s * nv, u0 + s * nu)
+            if not (p_out >= half_value):
+                found_left = True
+                left[i] = s + np.float64((half_value - p_out) / max(p_in - p_out, tiny) * step32)
+                break
+            p_in = p_out
+            k -= 1
+        k = seed + 1
+        p_in = _bilinear(image, v0 + (step_px * np.float64(seed)) * nv, u0 + (step_px * np.float64(seed)) * nu)
+        found_right = False
+        while step_px * np.float64(k) <= reach[i]:
+            s = step_px * np.float64(k)
+            p_out = _bilinear(image, v0 + s * nv, u0 + s * nu)
+            if not (p_out >= half_value):
+                found_right = True
+                right[i] = step_px * np.float64(k - 1) + np.float64((p_in - half_value) / max(p_in - p_out, tiny)
+                                                                     * step32)
+                break
+            p_in = p_out
+            k += 1
+        found[i] = found_left and found_right
+    return found, left, right
+
+
+# --- the tree method's pixel matching (angiohull.reconstruction.model.matching) ------------------
+
+@numba.njit(**_JIT)
+def _first_least(values):  # pragma: no cover - compiled
+    """``np.argmin(values)``: the first least value's index, or the first nan's."""
+    choice = 0
+    best = values[0]
+    for c in range(1, values.size):
+        v = values[c]
+        if not np.isnan(best) and (v < best or np.isnan(v)):
+            best = v
+            choice = c
+    return choice
+
+
+@numba.njit(**_JIT)
+def forest_states(unary, every, offset, order, start, parent):  # pragma: no cover - compiled
+    """:func:`angiohull.reconstruction.model.matching._forest_states` with the levels flat
+    (``order[start[d]:start[d + 1]]``: level d's pixels): per pixel of a level, from the deepest
+    up, and parent state, the child state of least ``total + transition`` (the first of equal
+    ones, as argmin), that sum added to the parent's total in the level's order (as ``np.add.at``);
+    then the roots' least totals and each level's choices below its parents' states."""
+    n, states = unary.shape
+    total = unary.copy()
+    best_child = np.zeros((n, states), np.int64)
+    joint = np.empty(states)
+    for depth in range(start.size - 2, 0, -1):
+        base = offset[depth - 1] - start[depth]
+        for k in range(start[depth], start[depth + 1]):
+            p = order[k]
+            up = parent[p]
+            for b in range(states):
+                for c in range(states):
+                    joint[c] = total[p, c] + every[base + k, c, b]
+                choice = _first_least(joint)
+                best_child[p, b] = choice
+                total[up, b] += joint[choice]
+    state = np.zeros(n, np.int64)
+    if start.size > 1:
+        for k in range(start[0], start[1]):
+            state[order[k]] = _first_least(total[order[k]])
+    for depth in range(1, start.size - 1):
+        for k in range(start[depth], start[depth + 1]):
+            p = order[k]
+            state[p] = best_child[p, state[parent[p]]]
+    return state
+
+
+# --- the tree method's spoiled cross-sections (angiohull.reconstruction.vessel_tree) -------------
+
+@numba.njit(**_JIT)
+def spoiled_runs(uv, rho, normal, arc, radius, owner, image_arc, margin_px, margin_mm, image_path, sides, out,
+                 left, right):  # pragma: no cover - compiled
+    """One view of :func:`angiohull.reconstruction.vessel_tree._overlaps`, in place on its rows
+    ``out``, ``left`` and ``right``: the pairs ``i < j`` whose squared distance (``j`` minus
+    ``i``) is less than ``(rho_i + rho_j + margin_px)**2`` (all of them within the k-d tree's
+    search radius ``2 max(rho) + margin_px``, so the same pairs), of two branches or a loop (arc,
+    and with ``image_path`` image arc, apart by more than the two radii and the margin), and each
+    point's run crossed by the other's disc, with the same arithmetic pair by pair. The pairs are
+    found in square cells a little wider than the search radius."""
+    n = uv.shape[0]
+    if n < 2:
+        return
+    widest = rho[0]
+    lo0 = uv[0, 0]
+    lo1 = uv[0, 1]
+    hi0 = lo0
+    hi1 = lo1
+    for p in range(n):
+        widest = max(widest, rho[p])
+        lo0 = min(lo0, uv[p, 0])
+        hi0 = max(hi0, uv[p, 0])
+        lo1 = min(lo1, uv[p, 1])
+        hi1 = max(hi1, uv[p, 1])
+    cell = max((2.0 * widest + margin_px) * (1.0 + 1e-6), 1e-300)
+    while ((hi0 - lo0) / cell + 1.0) * ((hi1 - lo1) / cell + 1.0) > 4.0 * n + 64.0:
+        cell *= 2.0
+    n0 = int((hi0 - lo0) / cell) + 1
+    n1 = int((hi1 - lo1) / cell) + 1
+    where = np.empty(n, np.int64)
+    start = np.zeros(n0 * n1 + 1, np.int64)
+    for p in range(n):
+        c = min(int((uv[p, 0] - lo0) / cell), n0 - 1) * n1 + min(int((uv[p, 1] - lo1) / cell), n1 - 1)
+        where[p] = c
+        start[c + 1] += 1
+    for c in range(n0 * n1):
+        start[c + 1] += start[c]
+    order = np.empty(n, np.int64)
+    fill = start[:-1].copy()
+    for p in range(n):
+        order[fill[where[p]]] = p
+        fill[where[p]] += 1
+    for i in range(n):
+        a0 = where[i] // n1
+        b0 = where[i] - a0 * n1
+        for ca in range(max(a0 - 1, 0), min(a0 + 1, n0 - 1) + 1):
+            for cb in range(max(b0 - 1, 0), min(b0 + 1, n1 - 1) + 1):
+                c = ca * n1 + cb
+                for m in range(start[c], start[c + 1]):
+                    j = order[m]
+                    if j <= i:
+                        continue
+                    du = uv[j, 0] - uv[i, 0]
+                    dv = uv[j, 1] - uv[i, 1]
+                    s = rho[i] + rho[j] + margin_px
+                    if not (du * du + dv * dv < s * s):
+                        continue
+                    loop = abs(arc[i] - arc[j]) > radius[i] + radius[j] + margin_mm
+                    if image_path:
+                        loop = loop and abs(image_arc[i] - image_arc[j]) > rho[i] + rho[j] + margin_px
+                    if not (owner[i] != owner[j] or loop):
+                        continue
+                    for side in range(2):
+                        a = i if side == 0 else j
+                        b = j if side == 0 else i
+                        sign = 1.0 if side == 0 else -1.0
+                        nu = normal[a, 0]
+                        nv = normal[a, 1]
+                        across = sign * (nu * du + nv * dv)
+                        along = abs(nu * dv - nv * du)
+                        reach = rho[b] + margin_px
+                        chord = np.sqrt(max(reach * reach - along * along, 0.0))
+                        rho_a = rho[a]
+                        if along < reach and abs(across) - chord < rho_a:
+                            out[a] = True
+                            if sides:
+                                if across - chord < -rho_a:
+                                    left[a] = True
+                                if across + chord > rho_a:
+                                    right[a] = True

@@ -237,6 +237,7 @@ import numpy as np
 from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 
+from ..compiled import kernels
 from ..errors import ReconstructionError, TreeError
 from ..geometry import Projection
 from ..tree import Branch, VesselTree
@@ -589,6 +590,27 @@ def _runs(image: np.ndarray, uv: np.ndarray, normal: np.ndarray, reach: np.ndarr
     return found_left & found_right, np.where(found_left, left_edge, np.nan), np.where(found_right, right_edge, np.nan)
 
 
+def _all_runs(image: np.ndarray, uv: np.ndarray, normal: np.ndarray, reach: np.ndarray,
+              step_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_runs` of every point: the points in bins of similar reach, each bin's profiles as
+    long as its longest reach. A run depends on the samples within its own reach alone, so the
+    compiled kernel reads each point's samples outward from it, only as far as the run goes (the
+    same samples, the same values)."""
+    compiled = kernels()
+    if compiled is not None:
+        return compiled.mask_runs(image, np.ascontiguousarray(uv, dtype=np.float64),
+                                  np.ascontiguousarray(normal, dtype=np.float64),
+                                  np.ascontiguousarray(reach, dtype=np.float64), float(step_px),
+                                  int(round(_SEEK_PX / step_px)))
+    n = len(uv)
+    found, left, right = np.zeros(n, dtype=bool), np.full(n, np.nan), np.full(n, np.nan)
+    bins = np.searchsorted(_REACH_BINS_PX, reach)
+    for b in np.unique(bins):
+        sel = np.flatnonzero(bins == b)
+        found[sel], left[sel], right[sel] = _runs(image, uv[sel], normal[sel], reach[sel], step_px)
+    return found, left, right
+
+
 def _sections(points: np.ndarray, tangents: np.ndarray, radius: np.ndarray, projections: Sequence[Projection],
               images: Sequence[np.ndarray], step_px: float) -> _Sections:
     n = len(points)
@@ -605,11 +627,7 @@ def _sections(points: np.ndarray, tangents: np.ndarray, radius: np.ndarray, proj
         normal = np.column_stack([-direction[:, 1], direction[:, 0]])
         # a run up to 2.5 radii + 4 px either side (the radius may still be the hull's, too wide)
         reach = np.clip(2.5 * radius * px_per_mm + 4.0, 6.0, _REACH_BINS_PX[-1])
-        found, left, right = np.zeros(n, dtype=bool), np.full(n, np.nan), np.full(n, np.nan)
-        bins = np.searchsorted(_REACH_BINS_PX, reach)
-        for b in np.unique(bins):
-            sel = np.flatnonzero(bins == b)
-            found[sel], left[sel], right[sel] = _runs(image, uv[sel], normal[sel], reach[sel], step_px)
+        found, left, right = _all_runs(image, uv, normal, reach, step_px)
         out["found"].append(found)
         out["width_px"].append(np.where(found, right - left, np.nan))
         out["offset_px"].append(np.where(found, 0.5 * (left + right), np.nan))
@@ -649,8 +667,21 @@ def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *,
     margin = settings.overlap_margin_px
     out = np.zeros((views, n), dtype=bool)
     left, right = np.zeros((views, n), dtype=bool), np.zeros((views, n), dtype=bool)
+    compiled = kernels()
     for k in range(views):
         rho = radius * sections.px_per_mm[k]
+        if compiled is not None:  # the same pairs, rules and arithmetic, pair by pair (see spoiled_runs)
+            if image_path:
+                step = np.linalg.norm(np.diff(sections.uv[k], axis=0), axis=1)
+                step[arrays.starts[1:] - 1] = 0.0
+                image_arc = np.concatenate([[0.0], np.cumsum(step)])
+            else:
+                image_arc = np.zeros(n)
+            compiled.spoiled_runs(np.ascontiguousarray(sections.uv[k]), np.ascontiguousarray(rho),
+                                  np.ascontiguousarray(sections.normal_px[k]), arc, np.ascontiguousarray(radius),
+                                  owner.astype(np.int64), image_arc, float(margin), float(settings.overlap_margin_mm),
+                                  bool(image_path), bool(sides), out[k], left[k], right[k])
+            continue
         pairs = cKDTree(sections.uv[k]).query_pairs(2.0 * float(rho.max()) + margin, output_type="ndarray")
         if len(pairs) == 0:
             continue
@@ -960,6 +991,28 @@ def _joining_curve(junction: np.ndarray, child: np.ndarray, first: int, step_mm:
             + (-2 * s ** 3 + 3 * s ** 2) * end + (s ** 3 - s ** 2) * (length * direction))
 
 
+def _joining_curves(junctions: np.ndarray, child: np.ndarray, first: int, step_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_joining_curve` from each of ``junctions`` (J, 3) at once: the curves' points one
+    after the other ((M, 3)) and the index of the junction each belongs to ((M,)). The same
+    arithmetic on the same values, element by element (the parameters are those of
+    :func:`numpy.linspace`: ``k * (1 / (n - 1))``, the last 1), so the points are those of the
+    curves built one by one, bit for bit."""
+    end = child[first]
+    direction = _clear_direction(child, first)
+    chords = end - junctions
+    lengths = np.array([float(np.linalg.norm(chord)) for chord in chords])  # as _joining_curve's (one dot each)
+    counts = np.array([max(2, int(np.ceil(length / step_mm)) + 1) for length in lengths])
+    owner = np.repeat(np.arange(len(junctions)), counts)
+    first_of = np.cumsum(counts) - counts
+    k = (np.arange(len(owner)) - first_of[owner]).astype(np.float64)
+    s = k * (1.0 / (counts - 1))[owner]
+    s[first_of + counts - 1] = 1.0
+    s = s[:, None]
+    curves = ((2 * s ** 3 - 3 * s ** 2 + 1) * junctions[owner] + (s ** 3 - 2 * s ** 2 + s) * chords[owner]
+              + (-2 * s ** 3 + 3 * s ** 2) * end + (s ** 3 - s ** 2) * (lengths[:, None] * direction)[owner])
+    return curves, owner
+
+
 def _disc_hits(pixels: np.ndarray, centres_px: np.ndarray, radii_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The (pixel, disc) index pairs where a pixel of ``pixels`` (N, 2) lies in a disc."""
     if len(centres_px) == 0 or len(pixels) == 0:
@@ -967,6 +1020,36 @@ def _disc_hits(pixels: np.ndarray, centres_px: np.ndarray, radii_px: np.ndarray)
     pairs = cKDTree(pixels).sparse_distance_matrix(cKDTree(centres_px), float(radii_px.max()), output_type="ndarray")
     inside = pairs["v"] <= radii_px[pairs["j"]]
     return pairs["i"][inside].astype(np.intp), pairs["j"][inside].astype(np.intp)
+
+
+def _wrong_pixels(image: np.ndarray, lo: np.ndarray, hi: np.ndarray, stride: int, uv: np.ndarray,
+                  radius_px: np.ndarray, owner: np.ndarray, n_candidates: int, others_uv: np.ndarray,
+                  others_px: np.ndarray) -> np.ndarray:
+    """Per candidate, the pixels of the grid ``lo + stride * k`` below ``hi`` ((u, v) each) that
+    some candidate's tube covers and where the candidate's tube with the rest of the tree disagrees
+    with ``image`` (>= 0.5 inside): (n_candidates,) int. The tubes are discs (centres ``uv``,
+    radii ``radius_px``, candidate ``owner``), the rest of the tree the discs ``others_uv``,
+    ``others_px``; a pixel lies in a disc where :func:`_disc_hits` says so. The compiled kernel
+    visits each disc's box of grid pixels with the same distance test; the NumPy code pairs the
+    pixels with the discs by k-d trees."""
+    compiled = kernels()
+    if compiled is not None:
+        return compiled.tube_wrong_pixels(image, int(lo[0]), int(lo[1]), len(range(lo[0], hi[0], stride)),
+                                          len(range(lo[1], hi[1], stride)), int(stride), uv, radius_px,
+                                          owner.astype(np.int64), int(n_candidates), others_uv, others_px)
+    v, u = np.mgrid[lo[1]:hi[1]:stride, lo[0]:hi[0]:stride]
+    pixels = np.column_stack([u.ravel(), v.ravel()]).astype(np.float64)
+    # only the pixels some candidate's tube covers can tell the candidates apart
+    hit_pixel, hit_disc = _disc_hits(pixels, uv, radius_px)
+    covers = np.zeros((len(pixels), n_candidates), dtype=bool)
+    covers[hit_pixel, owner[hit_disc]] = True
+    reach = covers.any(axis=1)
+    pixels, covers = pixels[reach], covers[reach]
+    inside = image[pixels[:, 1].astype(int), pixels[:, 0].astype(int)] >= 0.5
+    rest = np.zeros(len(pixels), dtype=bool)
+    rest[_disc_hits(pixels, others_uv, others_px)[0]] = True
+    # a pixel the rest of the tree covers is covered whichever candidate joins
+    return np.count_nonzero((covers | rest[:, None]) != inside[:, None], axis=0)
 
 
 def _junction_on_silhouettes(parent: np.ndarray, parent_arc: np.ndarray, child: np.ndarray, child_radius_mm: float,
@@ -988,9 +1071,7 @@ def _junction_on_silhouettes(parent: np.ndarray, parent_arc: np.ndarray, child: 
     # discs half a step apart, at most an eighth of a radius on a wide tube (the union's edge within
     # a hundredth of a radius of the tube's)
     spacing_mm = max(0.5 * settings.point_step_mm, 0.125 * child_radius_mm)
-    curves = [_joining_curve(parent[j], child, first, spacing_mm) for j in candidates]
-    owner = np.repeat(np.arange(len(candidates)), [len(c) for c in curves])
-    flat = np.concatenate(curves)
+    flat, owner = _joining_curves(parent[candidates], child, first, spacing_mm)
     others_mm, others_radius_mm = others
     wrong = np.zeros(len(candidates))
     for projection, image in zip(projections, images):
@@ -1007,22 +1088,11 @@ def _junction_on_silhouettes(parent: np.ndarray, parent_arc: np.ndarray, child: 
         tube_stride = (int(widest_px // (0.5 * _JUNCTION_STRIDE_RADIUS_PX))
                        if widest_px >= _JUNCTION_STRIDE_RADIUS_PX else 1)
         stride = max(tube_stride, int(np.ceil(np.sqrt(np.prod(hi - lo) / _JUNCTION_MAX_PIXELS))))
-        v, u = np.mgrid[lo[1]:hi[1]:stride, lo[0]:hi[0]:stride]
-        pixels = np.column_stack([u.ravel(), v.ravel()]).astype(np.float64)
-        # only the pixels some candidate's tube covers can tell the candidates apart
-        hit_pixel, hit_disc = _disc_hits(pixels, uv, radius_px)
-        covers = np.zeros((len(pixels), len(candidates)), dtype=bool)
-        covers[hit_pixel, owner[hit_disc]] = True
-        reach = covers.any(axis=1)
-        pixels, covers = pixels[reach], covers[reach]
-        inside = image[pixels[:, 1].astype(int), pixels[:, 0].astype(int)] >= 0.5
         others_uv = projection.project(others_mm)
         others_px = others_radius_mm * focal / projection.depth_mm(others_mm)
         near = np.all((others_uv + others_px[:, None] >= lo - 1) & (others_uv - others_px[:, None] <= hi + 1), axis=1)
-        rest = np.zeros(len(pixels), dtype=bool)
-        rest[_disc_hits(pixels, others_uv[near], others_px[near])[0]] = True
-        # a pixel the rest of the tree covers is covered whichever candidate joins
-        wrong += stride * stride * np.count_nonzero((covers | rest[:, None]) != inside[:, None], axis=0)
+        wrong += stride * stride * _wrong_pixels(image, lo, hi, stride, uv, radius_px, owner, len(candidates),
+                                                 others_uv[near], others_px[near])
     if wrong.min() >= wrong[np.flatnonzero(candidates == reference)[0]] - settings.junction_silhouette_gain_px:
         return reference
     ties = np.flatnonzero(wrong <= wrong.min() + settings.junction_silhouette_tie_px)
@@ -1049,7 +1119,10 @@ def _junction_on_axes(arrays: _Arrays, settings: TreeSettings,
         parent, parent_radius, child, child_radius = points[p], radius[p], points[b], radius[b]
         # the child's first point clear of the parent's tube: the axis distance exceeds both radii
         # and the margin (before it the two vessels merge in every view and the hull)
-        gaps = np.linalg.norm(child[:, None, :] - parent[None, :, :], axis=2)
+        # np.linalg.norm(child[:, None] - parent[None], axis=2), coordinate by coordinate: the same
+        # squares added in the same order (x, y, then z), without the three-long strided reduction
+        dx, dy, dz = (child[:, k, None] - parent[None, :, k] for k in range(3))
+        gaps = np.sqrt((dx * dx + dy * dy) + dz * dz)
         nearest = np.argmin(gaps, axis=1)
         clear = gaps[np.arange(len(child)), nearest] > parent_radius[nearest] + child_radius + settings.junction_margin_mm
         if not clear.any():

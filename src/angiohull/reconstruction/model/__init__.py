@@ -278,7 +278,8 @@ def _overlapping_discs(points: np.ndarray, radius: np.ndarray, projection: Proje
     rho = radius * max(projection.focal_lengths_px) / projection.depth_mm(points) + 0.5
     pairs = cKDTree(uv).query_pairs(float((1.0 + reach_radii) * rho.max()), output_type="ndarray")
     i, j = (pairs[:, 0], pairs[:, 1]) if len(pairs) else (np.zeros(0, np.int64), np.zeros(0, np.int64))
-    gap = np.linalg.norm(uv[i] - uv[j], axis=1)
+    du, dv = uv[i, 0] - uv[j, 0], uv[i, 1] - uv[j, 1]
+    gap = np.sqrt(du * du + dv * dv)  # np.linalg.norm(uv[i] - uv[j], axis=1), without its reduction's overhead
     return i, j, gap <= rho[j] + reach_radii * rho[i], gap <= rho[i] + reach_radii * rho[j]
 
 

@@ -69,6 +69,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from ...compiled import kernels
 from ...geometry import Projection
 from ..epipolar import ray_directions
 from .graph2d import CenterlineGraph2D
@@ -360,6 +361,38 @@ def _bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return ndi.map_coordinates(image, [uv[:, 1], uv[:, 0]], order=1, mode="nearest")
 
 
+def _forest_states(unary: np.ndarray, every: np.ndarray, offset: np.ndarray, levels: Sequence[np.ndarray],
+                   parent: np.ndarray) -> np.ndarray:
+    """Each pixel's state (column of ``unary``, (P, S) costs) that minimises the unary costs plus
+    the transition costs ``every`` ((E, child state, parent state), the rows of level ``d``'s
+    pixels from ``offset[d - 1]``) over the forest of ``levels`` (roots first) and ``parent``:
+    min-sum messages from the leaves to the roots, level by level (each pixel's cost plus its
+    subtree's, added to its parent's in the level's order), then the choices back down (the first
+    of equal costs). The compiled kernel does the same per pixel, without the level's arrays."""
+    compiled = kernels()
+    if compiled is not None:
+        sizes = np.array([len(level) for level in levels], dtype=np.int64)
+        return compiled.forest_states(np.ascontiguousarray(unary, dtype=np.float64),
+                                      np.ascontiguousarray(every, dtype=np.float64), np.asarray(offset, np.int64),
+                                      np.concatenate(levels).astype(np.int64), np.concatenate([[0], np.cumsum(sizes)]),
+                                      np.asarray(parent, np.int64))
+    total = unary.copy()  # each pixel's cost plus its subtree's messages
+    best_child = np.zeros(unary.shape, dtype=np.int64)
+    for depth in range(len(levels) - 1, 0, -1):
+        level = levels[depth]
+        up = parent[level]
+        joint = total[level][:, :, None] + every[offset[depth - 1]:offset[depth]]  # (n, child, parent)
+        choice = np.argmin(joint, axis=1)
+        best_child[level] = choice
+        np.add.at(total, up, joint.min(axis=1))  # the values at ``choice``
+    state = np.zeros(len(unary), dtype=np.int64)
+    roots = levels[0]
+    state[roots] = np.argmin(total[roots], axis=1)
+    for level in levels[1:]:
+        state[level] = best_child[level, state[parent[level]]]
+    return state
+
+
 def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), settings: MatchSettings = MATCH_SETTINGS,
                  claims: np.ndarray | None = None, cache: dict | None = None, avoid: Avoid | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -417,8 +450,13 @@ def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), sett
 
     def transition(child: np.ndarray, up: np.ndarray) -> np.ndarray:
         """(n, C+1, C+1) cost of (child state, parent state)."""
-        step_px = np.linalg.norm(g.uv_px[child] - g.uv_px[up], axis=1)
-        jump = np.linalg.norm(point[child][:, :, None, :] - point[up][:, None, :, :], axis=3)
+        # the norms coordinate by coordinate: np.linalg.norm's squares added in the same order,
+        # without its strided reduction over the last axis
+        du, dv = (g.uv_px[child, k] - g.uv_px[up, k] for k in range(2))
+        step_px = np.sqrt(du * du + dv * dv)
+        at_child, at_up = point[child], point[up]
+        dx, dy, dz = (at_child[:, :, None, k] - at_up[:, None, :, k] for k in range(3))
+        jump = np.sqrt((dx * dx + dy * dy) + dz * dz)
         ds = np.maximum(step_px[:, None, None] * scale[up][:, None, :], 1e-6)
         cost = s.jump_weight * np.maximum(jump / ds - s.max_stretch, 0.0)
         switch = chain_b[child][:, :, None] != chain_b[up][:, None, :]
@@ -433,8 +471,6 @@ def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), sett
         full[:, gap, gap] = 0.0
         return full
 
-    total = unary.copy()  # each pixel's cost plus its subtree's messages
-    best_child = np.zeros((n_p, n_c + 1), dtype=np.int64)
     if cache is not None and "transitions" in cache:
         transitions = cache["transitions"]
     else:  # every level's at once (one batch of small arrays, not one per level), sliced per level below
@@ -444,19 +480,7 @@ def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), sett
                        np.concatenate([[0], np.cumsum([len(level) for level in below])]).astype(np.int64))
         if cache is not None:
             cache["transitions"] = transitions
-    every, offset = transitions
-    for depth in range(len(levels) - 1, 0, -1):
-        level = levels[depth]
-        up = parent[level]
-        joint = total[level][:, :, None] + every[offset[depth - 1]:offset[depth]]  # (n, child, parent)
-        choice = np.argmin(joint, axis=1)
-        best_child[level] = choice
-        np.add.at(total, up, joint.min(axis=1))  # the values at ``choice``
-    state = np.zeros(n_p, dtype=np.int64)
-    roots = levels[0]
-    state[roots] = np.argmin(total[roots], axis=1)
-    for level in levels[1:]:
-        state[level] = best_child[level, state[parent[level]]]
+    state = _forest_states(unary, *transitions, levels, parent)
     matched = state < gap
     idx = np.flatnonzero(matched)
     points[idx] = point[idx, state[idx]]
