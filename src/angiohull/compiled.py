@@ -12,7 +12,7 @@ The library uses the compiled kernels when numba can be imported; the environmen
 ``ANGIOHULL_COMPILED=0`` (or :func:`set_enabled`, :func:`disabled`) runs the NumPy code instead.
 The command line chooses per command where ``ANGIOHULL_COMPILED`` is unset
 (:func:`angiohull.cli.main`: loading numba costs about 0.4 s a process). The first call of a
-kernel on a machine compiles it (10-20 s for all, once); later processes load it from numba's
+kernel on a machine compiles it (about 30 s for all, once); later processes load it from numba's
 cache (at a terminal, a note on stderr says when it compiles).
 """
 
@@ -49,7 +49,7 @@ def kernels() -> ModuleType | None:
         else:
             _state["module"] = _numba_kernels
             if _interactive() and not _cached(_numba_kernels):
-                sys.stderr.write("angiohull: compiling the numba kernels, once for this installation (10-20 s; "
+                sys.stderr.write("angiohull: compiling the numba kernels, once for this installation (about 30 s; "
                                  "ANGIOHULL_COMPILED=0 runs the NumPy code instead)\n")
     return _state["module"]  # type: ignore[return-value]
 
