@@ -66,27 +66,27 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    (``TreeSettings.bound_unmeasured``).
    **With two views, one tree per matching** (``alternative_claim_costs``): steps 2-4 run again with
    each alternative claim cost (the first round of matchings, which no claim enters, shared), and of
-   the final trees the one judged best (below) is kept: the one whose tubes' silhouettes agree
-   best with the masks (mean Dice over the views, :mod:`.agreement`), less a penalty for length; a matching that gives the same volume and own matchings as an
-   earlier one is not built again. A wrong pairing (a vessel of one view with the wrong vessel of
-   the other) is consistent with both silhouettes only until its tree has been pruned and fitted:
-   then it leaves mask pixels to nothing or draws tubes outside the masks, and the larger claim
-   cost, under which the reverse matching's disagreement weighs more, often pairs that vessel
-   right. Judging the first trees instead of the final ones kept little of the gain
-   (docs/tree-method.md). **The judge** is the agreement less a penalty for length:
-   ``length_weight`` times the tree's length plus ``redundant_weight`` times the length of its
-   branches only one view needs (:func:`redundant_branches`, both directions: their own points
-   the rest covers in one view at least ``rematch_redundant_share``, in the other less than
-   ``explained_share``), over the mean length of the matchings' own trees. Of trees that explain
-   the masks alike, the one with a wrong pairing is most often the longer, and it often carries a branch that hides under
-   another in one view while it explains the other view's pixels of a vessel it is not: among
-   candidates agreeing within 0.01 of each other and the best, the shorter tree was the nearer
-   to the truth in 85 % of the pairs more than 1 mm apart, the better agreement in 64 %
-   (docs/tree-method.md). On Linux with two CPUs or more and no other Python thread
-   (``fork_alternatives``, :func:`.forking._can_fork`), the alternative matchings' trees are built in a
-   forked child while this process builds the first (the same trees: the child runs the same code
-   on the same arrays and sends its trees back pickled; if it fails they are built here). No
-   Python thread is running, so none holds a lock the child would need; the BLAS library's own
+   the final trees the one judged best (below) is kept: the one whose tubes' silhouettes agree best
+   with the masks (mean Dice over the views, :mod:`.agreement`), less a penalty for length; a
+   matching that gives the same volume and own matchings as an earlier one is not built again. A
+   wrong pairing (a vessel of one view with the wrong vessel of the other) is consistent with both
+   silhouettes only until its tree has been pruned and fitted: then it leaves mask pixels to nothing
+   or draws tubes outside the masks, and the larger claim cost, under which the reverse matching's
+   disagreement weighs more, often pairs that vessel right. Judging the first trees instead of the
+   final ones kept little of the gain (docs/tree-method.md). **The judge** is the agreement less a
+   penalty for length: ``length_weight`` times the tree's length plus ``redundant_weight`` times the
+   length of its branches only one view needs (:func:`redundant_branches`, both directions: their
+   own points the rest covers in one view at least ``rematch_redundant_share``, in the other less
+   than ``explained_share``), over the mean length of the matchings' own trees. Of trees that
+   explain the masks alike, the one with a wrong pairing is most often the longer, and it often
+   carries a branch that hides under another in one view while it explains the other view's pixels
+   of a vessel it is not: among candidates agreeing within 0.01 of each other and the best, the
+   shorter tree was the nearer to the truth in 85 % of the pairs more than 1 mm apart, the better
+   agreement in 64 % (docs/tree-method.md). On Linux with two CPUs or more and no other Python
+   thread (``fork_alternatives``, :func:`.forking._can_fork`), the alternative matchings' trees are
+   built in a forked child while this process builds the first (the same trees: the child runs the
+   same code on the same arrays and sends its trees back pickled; if it fails they are built here).
+   No Python thread is running, so none holds a lock the child would need; the BLAS library's own
    threads are fork-safe (multiprocessing's fork start method relies on it too).
    **Hypotheses of a wrong pairing** (two views, ``hypotheses``): a tree that agrees less than
    ``hypothesis_gate`` with the masks is built again ``hypotheses`` times, each time with one of
