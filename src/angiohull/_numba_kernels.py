@@ -794,58 +794,59 @@ def _grid_span(c, reach, lo, stride, n):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
+def _mark_grid_discs(centres, radii, column, lo_u, lo_v, stride, n_u, n_v, gate, out):  # pragma: no cover - compiled
+    """Set ``out[p, column[k]]`` for each pixel ``p`` (``b * n_u + a``) of the grid ``(lo_u + stride
+    * a, lo_v + stride * b)`` with ``gate[p]`` that lies in disc ``k`` (centres (K, 2) u, v; radii
+    (K,)) as scipy's k-d tree pairs them (``sparse_distance_matrix`` up to the largest radius, then
+    the disc's own): the squared distance ``du * du + dv * dv`` (pixel minus centre) at most the
+    largest radius squared, and its square root at most the disc's radius."""
+    if centres.shape[0] == 0:
+        return
+    reach = radii.max()
+    bound = reach * reach
+    for k in range(centres.shape[0]):
+        cu = centres[k, 0]
+        cv = centres[k, 1]
+        a0, a1 = _grid_span(cu, reach, lo_u, stride, n_u)
+        b0, b1 = _grid_span(cv, reach, lo_v, stride, n_v)
+        for b in range(b0, b1 + 1):
+            dv = np.float64(lo_v + stride * b) - cv
+            for a in range(a0, a1 + 1):
+                p = b * n_u + a
+                if gate[p]:
+                    du = np.float64(lo_u + stride * a) - cu
+                    d = du * du + dv * dv
+                    if d <= bound and np.sqrt(d) <= radii[k]:
+                        out[p, column[k]] = True
+
+
+@numba.njit(**_JIT)
 def tube_wrong_pixels(image, lo_u, lo_v, n_u, n_v, stride, uv, radius_px, owner, n_candidates, others_uv,
                       others_px):  # pragma: no cover - compiled
     """Per candidate, the pixels of the grid ``(lo_u + stride * a, lo_v + stride * b)`` (``a <
     n_u``, ``b < n_v``) that some candidate's disc covers and where the candidate's discs with the
     discs ``others_uv`` disagree with ``image`` (>= 0.5 inside), as
-    :func:`angiohull.reconstruction.vessel_tree._wrong_pixels` counts them. A pixel lies in a disc
-    as scipy's k-d tree pairs them there (``sparse_distance_matrix`` up to the largest radius, then
-    the disc's own): the squared distance ``du * du + dv * dv`` (pixel minus centre) at most the
-    largest radius squared, and its square root at most the disc's radius."""
+    :func:`angiohull.reconstruction.vessel_tree._wrong_pixels` counts them; a pixel lies in a disc
+    where :func:`_mark_grid_discs` says so."""
     size = n_u * n_v
     covers = np.zeros((size, n_candidates), np.bool_)
+    _mark_grid_discs(uv, radius_px, owner, lo_u, lo_v, stride, n_u, n_v, np.ones(size, np.bool_), covers)
     reached = np.zeros(size, np.bool_)
-    if uv.shape[0] > 0:
-        reach = radius_px.max()
-        bound = reach * reach
-        for k in range(uv.shape[0]):
-            cu = uv[k, 0]
-            cv = uv[k, 1]
-            a0, a1 = _grid_span(cu, reach, lo_u, stride, n_u)
-            b0, b1 = _grid_span(cv, reach, lo_v, stride, n_v)
-            for b in range(b0, b1 + 1):
-                dv = np.float64(lo_v + stride * b) - cv
-                for a in range(a0, a1 + 1):
-                    du = np.float64(lo_u + stride * a) - cu
-                    d = du * du + dv * dv
-                    if d <= bound and np.sqrt(d) <= radius_px[k]:
-                        covers[b * n_u + a, owner[k]] = True
-                        reached[b * n_u + a] = True
-    rest = np.zeros(size, np.bool_)
-    if others_uv.shape[0] > 0:
-        reach = others_px.max()
-        bound = reach * reach
-        for k in range(others_uv.shape[0]):
-            cu = others_uv[k, 0]
-            cv = others_uv[k, 1]
-            a0, a1 = _grid_span(cu, reach, lo_u, stride, n_u)
-            b0, b1 = _grid_span(cv, reach, lo_v, stride, n_v)
-            for b in range(b0, b1 + 1):
-                dv = np.float64(lo_v + stride * b) - cv
-                for a in range(a0, a1 + 1):
-                    if reached[b * n_u + a]:
-                        du = np.float64(lo_u + stride * a) - cu
-                        d = du * du + dv * dv
-                        if d <= bound and np.sqrt(d) <= others_px[k]:
-                            rest[b * n_u + a] = True
+    for p in range(size):
+        for c in range(n_candidates):
+            if covers[p, c]:
+                reached[p] = True
+                break
+    rest = np.zeros((size, 1), np.bool_)  # only where a candidate reaches: the others tell no candidate apart
+    _mark_grid_discs(others_uv, others_px, np.zeros(others_uv.shape[0], np.int64), lo_u, lo_v, stride, n_u, n_v,
+                     reached, rest)
     counts = np.zeros(n_candidates, np.int64)
     for p in range(size):
         if not reached[p]:
             continue
         b = p // n_u
         inside = image[lo_v + stride * b, lo_u + stride * (p - b * n_u)] >= 0.5
-        if rest[p]:  # covered whichever candidate joins
+        if rest[p, 0]:  # covered whichever candidate joins
             if not inside:
                 for c in range(n_candidates):
                     counts[c] += 1
