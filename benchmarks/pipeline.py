@@ -170,9 +170,9 @@ def process_times(repeats: int) -> dict:
     study = SHARED / "benchmarks" / "peer-synthetic" / "clinical_moderate_000"
     commands = {"angiohull --help": f"{exe} --help",
                 "angiohull evaluate (K = 100, an authors' study; the NumPy code, as the command line chooses)":
-                    f"{exe} evaluate {study} --json",
+                    f"{exe} evaluate {study} --method hull --json",
                 "the same with numba's kernels (ANGIOHULL_COMPILED=1)":
-                    f"ANGIOHULL_COMPILED=1 {exe} evaluate {study} --json"}
+                    f"ANGIOHULL_COMPILED=1 {exe} evaluate {study} --method hull --json"}
     out = {}
     for name, command in commands.items():
         seconds = []

@@ -277,7 +277,7 @@ def test_demo_replaces_its_own_earlier_output(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr("angiohull.demo.write_demo_study", lambda folder: disc_study(Path(folder)))
     monkeypatch.setattr("angiohull.viz.reconstruction_figure", lambda path, **kw: Path(path).write_bytes(b"png") and Path(path))
     out = tmp_path / "demo"
-    argv = ["demo", "-o", str(out), "-k", "20"]
+    argv = ["demo", "-o", str(out), "-k", "20", "--method", "hull"]
     assert main(argv) == 0
     (out / "qca").mkdir()  # e.g. an analysis a newer demo wrote: still the demo's own
     assert main(argv) == 0
@@ -545,12 +545,12 @@ def test_paths_outside_the_study_folder(tmp_path, capsys, field):
         text, name, needle = text.replace("masks/ap.png", new), "views[0].mask", repr(new)
     study.write_text(text)
     before = snapshot(tmp_path)
-    line = run_fails(capsys, ["evaluate", str(study.parent), "-k", "20"], f"{study}: {name}: ", needle,
-                     "allow_outside_paths: true")
+    line = run_fails(capsys, ["evaluate", str(study.parent), "-k", "20", "--method", "hull"], f"{study}: {name}: ",
+                     needle, "allow_outside_paths: true")
     assert "outside" in line or "leads out" in line or "absolute" in line
     assert snapshot(tmp_path) == before
     study.write_text(text + "allow_outside_paths: true\n")  # the opt-in
-    assert main(["evaluate", str(study.parent), "-k", "20", "--json"]) == 0
+    assert main(["evaluate", str(study.parent), "-k", "20", "--method", "hull", "--json"]) == 0
 
 
 # -- accepted silently before: now a warning (legal but suspicious) or an error ----------------------
@@ -562,7 +562,7 @@ def warning_lines(err: str) -> list[str]:
 def test_a_mask_of_all_ones_is_a_warning(tmp_path, capsys):
     study = disc_study(tmp_path / "study")
     write_mask(study.parent / "masks" / "lao90.png", np.ones((64, 64), bool))
-    assert main(["evaluate", str(study.parent), "-k", "20", "--json"]) == 0
+    assert main(["evaluate", str(study.parent), "-k", "20", "--method", "hull", "--json"]) == 0
     # the mask's own warning, and (the hull of both views covers little of it) the views' disagreement
     [line] = [w for w in warning_lines(capsys.readouterr().err) if "views disagree" not in w]
     assert f"{study}: views[1].mask: view 'lao90'" in line and "every pixel is vessel" in line and "inverted" in line
@@ -588,7 +588,8 @@ def test_two_views_that_share_nothing_are_an_error(tmp_path, capsys):
 def test_an_empty_ground_truth_is_an_error(tmp_path, capsys):
     study = disc_study(tmp_path / "study")
     np.save(study.parent / "gt.npy", np.empty((0, 3)))
-    run_fails(capsys, ["evaluate", str(study.parent), "-k", "20"], f"{study}: ground_truth: ", "gt.npy", "no points")
+    run_fails(capsys, ["evaluate", str(study.parent), "-k", "20", "--method", "hull"], f"{study}: ground_truth: ",
+              "gt.npy", "no points")
 
 
 @pytest.mark.parametrize("count, outcome", [(20, "warning"), (60, "error")])

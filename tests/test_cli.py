@@ -32,7 +32,7 @@ def ball_study(folder, *, corrupt=None, primaries=(("ap", 0.0), ("lao90", 90.0))
 def test_reconstruct_writes_ply_report_and_figure(tmp_path, capsys):
     study = ball_study(tmp_path / "study")
     out = tmp_path / "out"
-    assert main(["reconstruct", str(study.parent), "-o", str(out), "--resolution", "40"]) == 0
+    assert main(["reconstruct", str(study.parent), "-o", str(out), "--resolution", "40", "--method", "hull"]) == 0
     for name in ("vessel.ply", "centerlines.ply", "report.json", "figure.png"):
         assert (out / name).is_file(), name
     report = json.loads((out / "report.json").read_text())
@@ -85,7 +85,7 @@ def test_two_views_with_the_hull_get_a_note_pointing_to_the_tree_method(tmp_path
     study = ball_study(tmp_path / "study")  # two views
     assert main(["reconstruct", str(study), "-o", str(tmp_path / "out"), "-k", "20", "--no-centerlines",
                  "--no-figure", "--no-tree", "--no-viewer"]) == 0
-    notes = [line for line in capsys.readouterr().err.splitlines() if "--method tree" in line]
+    notes = [line for line in capsys.readouterr().err.splitlines() if "the tree method" in line]
     assert len(notes) == 1 and "two views" in notes[0] and "phantom" in notes[0]
     assert notes[0].endswith(two_view_hint(2, "hull"))
     assert two_view_hint(2, "tree") is None and two_view_hint(3, "hull") is None and two_view_hint(1, "hull") is None
@@ -101,7 +101,7 @@ def test_reconstruct_without_centerlines_and_figure(tmp_path):
 
 def test_evaluate_json_prints_exactly_one_object(tmp_path, capsys):
     study = ball_study(tmp_path / "study")
-    assert main(["evaluate", str(study.parent), "--resolution", "40", "--json"]) == 0
+    assert main(["evaluate", str(study.parent), "--resolution", "40", "--method", "hull", "--json"]) == 0
     captured = capsys.readouterr()
     scores = json.loads(captured.out)
     assert set(scores) == {"dice3d", "iou3d", "chamfer_mm", "dice2d_paper", "dice2d", "time_s", "n_points"}
@@ -111,7 +111,7 @@ def test_evaluate_json_prints_exactly_one_object(tmp_path, capsys):
 
 def test_evaluate_text_output(tmp_path, capsys):
     study = ball_study(tmp_path / "study")
-    assert main(["evaluate", str(study.parent), "-k", "30"]) == 0
+    assert main(["evaluate", str(study.parent), "-k", "30", "--method", "hull"]) == 0
     assert "Dice3D" in capsys.readouterr().out
 
 
@@ -194,8 +194,9 @@ def test_shared_names_agree_with_the_modules_that_implement_them():
 
 
 def test_the_command_line_chooses_the_kernels_that_pay(tmp_path, monkeypatch):
-    """numba's kernels for calibration, experiments and K >= 512; the NumPy code for a small job;
-    ANGIOHULL_COMPILED decides where it is set; the library's setting is restored afterwards."""
+    """numba's kernels for the tree method (the default), calibration, experiments and K >= 512; the
+    NumPy code for a small job; ANGIOHULL_COMPILED decides where it is set; the library's setting is
+    restored afterwards."""
     pytest.importorskip("numba", reason="numba is not installed (pip install '.[fast]')")
     from angiohull import compiled
     from angiohull.cli import _kernels_pay, build_parser
@@ -203,8 +204,12 @@ def test_the_command_line_chooses_the_kernels_that_pay(tmp_path, monkeypatch):
     def pays(*arguments):
         return _kernels_pay(build_parser(arguments[0]).parse_args(list(arguments)))
 
-    assert not pays("reconstruct", "study", "-o", "out") and not pays("evaluate", "study", "-k", "256")
-    assert not pays("demo")
+    assert pays("reconstruct", "study", "-o", "out") and pays("evaluate", "study") and pays("demo")  # the tree method
+    assert pays("reconstruct", "study", "-o", "out", "--method", "tree", "--no-tree")
+    for hull in (["--method", "hull"], ["--preset", "paper"], ["--preset", "refined"], ["--min-views", "2"],
+                 ["--no-tree"]):  # each picks the hull (options.chosen_method)
+        assert not pays("reconstruct", "study", "-o", "out", *hull)
+    assert not pays("evaluate", "study", "-k", "256", "--method", "hull")
     assert pays("reconstruct", "study", "-o", "out", "--calibrate") and pays("evaluate", "study", "-k", "512")
     assert pays("experiment", "general", "-o", "runs")
     study = ball_study(tmp_path / "study")

@@ -97,11 +97,13 @@ def test_study_from_dicom_then_reconstruct(tmp_path, angiograms, capsys):
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith(f"view0: {files[0]} frame 0 (single frame), LAO 31.3 CAU 12.5, ") and out[0].endswith("vessel pixels")
     assert out[-1] == f"wrote {study / 'study.yaml'} (2 views)"
-    assert main(["reconstruct", str(study), "-o", str(tmp_path / "out"), "-k", "60", "--no-figure", "-q"]) == 0
+    assert main(["reconstruct", str(study), "-o", str(tmp_path / "out"), "--no-figure", "-q"]) == 0  # the tree method
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert [v["geometry_source"] for v in report["views"]] == ["dicom", "dicom"]
     assert report["views"][0]["carm"]["clinical"] == "LAO 31.3 CAU 12.5"
     assert all(v["dice2d_reprojection"] > 70 for v in report["views"])  # two consistent synthetic views
+    assert report["options"]["method"] == "tree" and report["tree_method"]["pairs"] == [["view0", "view1"],
+                                                                                     ["view1", "view0"]]
 
 
 def test_study_from_dicom_errors_exit_2(tmp_path, capsys):
@@ -132,7 +134,8 @@ def test_fallback_warnings_are_one_line_each_on_stderr(tmp_path, capsys):
     write_mask(tmp_path / "m.png", tree().silhouette(carm))
     (tmp_path / "study.yaml").write_text("angiohull: 1\nviews:\n  - {name: a, mask: m.png, dicom: fov.dcm}\n"
                                          "  - {name: b, mask: m.png, dicom: fov.dcm}\n")
-    assert main(["reconstruct", str(tmp_path), "-o", str(tmp_path / "out"), "-k", "30", "--no-figure", "-q"]) == 0
+    assert main(["reconstruct", str(tmp_path), "-o", str(tmp_path / "out"), "-k", "30", "--method", "hull",
+                 "--no-figure", "-q"]) == 0
     err = capsys.readouterr().err.splitlines()
     # the two views are one view twice: the views' angle has its own warning, one line too
     assert len(err) == 2 and err[1].startswith("angiohull: warning: the views look along nearly one line (degrees from "

@@ -1,6 +1,6 @@
 """Parity with the authors' own code on their 48 peer-synthetic studies (issue: core, must show).
 
-``angiohull evaluate --engine kdtree --resolution 100 --json`` must reproduce the authors' scores
+``angiohull evaluate --method hull --engine kdtree --resolution 100 --json`` must reproduce the authors' scores
 case by case: Dice3D and IoU3D within 0.05 points, Chamfer within 0.005 mm, the paper-protocol
 Dice2D within 0.1 points.
 """
@@ -24,7 +24,8 @@ def _kdtree_reproduces_the_authors_scores(folder, capsys, every: int):
     assert len(rows) == 48
     failures = []
     for row in rows[::every]:
-        code = main(["evaluate", str(folder / row["case"]), "--engine", "kdtree", "--resolution", "100", "--json"])
+        code = main(["evaluate", str(folder / row["case"]), "--method", "hull", "--engine", "kdtree", "--resolution",
+                     "100", "--json"])
         out = capsys.readouterr().out
         assert code == 0
         scores = json.loads(out)

@@ -151,9 +151,9 @@ def test_empty_hull_names_the_view_and_suggests_calibration():
     b = np.zeros((128, 128), bool)
     b[118:123, 118:123] = True  # a far corner in view 1: the two cones never meet... check
     with pytest.raises(EmptyHullError, match=r"view 1 \('lateral'\).*calibration") as info:
-        reconstruct(projections, [a, b], resolution=40, view_names=["frontal", "lateral"])
+        reconstruct(projections, [a, b], resolution=40, view_names=["frontal", "lateral"], method="hull")
     assert info.value.view_index == 1 and info.value.points_before > 0
-    empty = reconstruct(projections, [a, b], resolution=40, allow_empty=True)
+    empty = reconstruct(projections, [a, b], resolution=40, allow_empty=True, method="hull")
     assert empty.vessel_points_mm.shape == (0, 3) and empty.centerline_points_mm.shape == (0, 3)
 
 
@@ -213,7 +213,7 @@ def test_centerlines_of_a_straight_tube_lie_on_its_axis():
 
     projections = [view(0, 0, spacing=1.0), view(0, 90, spacing=1.0), view(60, 30, spacing=1.0)]
     masks = [tube_mask(p) for p in projections]
-    result = reconstruct(projections, masks, resolution=80)
+    result = reconstruct(projections, masks, resolution=80, method="hull")
     line = result.centerline_points_mm
     assert len(line) > 20
     # inside the tube (within a lattice spacing of its surface) and spread along it; the paper's

@@ -844,6 +844,37 @@ def test_the_tree_method_refuses_one_view_and_hull_only_options():
         reconstruct(projections, masks, method="model")
 
 
+def test_the_tree_method_is_the_default_and_a_hull_option_picks_the_hull():
+    from angiohull.options import chosen_method
+    from angiohull.workflow import ReconstructOptions
+
+    projections = _views()
+    masks = _masks(_y(), projections)
+    default = reconstruct(projections, masks, centerlines=False)
+    assert default.method == "tree" and default.model_build is not None and default.lattice.resolution == 256
+    for hull_option in ({"preset": "paper"}, {"preset": "refined"}, {"min_views": 2}, {"tree": False}):
+        result = reconstruct(projections, masks, resolution=40, centerlines=False, **hull_option)
+        assert result.method == "hull" and result.model_build is None, hull_option
+    assert reconstruct(projections, masks, method="hull", resolution=40).preset == "paper"  # the hull's default
+    with pytest.raises(ReconstructionError, match="two views or more, got 1; use method='hull'"):
+        reconstruct(projections[:1], masks[:1])
+    # the command line's options, by the same rule
+    assert ReconstructOptions().method == "tree" and ReconstructOptions().resolution is None
+    assert (ReconstructOptions(preset="refined").method, ReconstructOptions(min_views=2).method) == ("hull", "hull")
+    assert ReconstructOptions(method="hull").preset == "paper" and ReconstructOptions(tree=False).method == "hull"
+    with pytest.raises(ReconstructionError, match="no preset or min_views"):
+        ReconstructOptions(method="tree", preset="refined")
+    assert [chosen_method(None), chosen_method("hull"), chosen_method("tree", "refined")] == ["tree", "hull", "tree"]
+
+
+def test_a_tree_method_failure_says_that_the_hull_is_there_instead():
+    """A hull too small for a vessel tree (a coarse lattice): the tree method's error names the hull."""
+    projections = _views()
+    masks = _masks(_y(), projections)
+    with pytest.raises(ReconstructionError, match="method 'hull' carves the visual hull instead"):
+        reconstruct(projections, masks, resolution=8)
+
+
 def test_experiment_configurations_take_the_method_and_refuse_hull_only_options_with_it():
     from pydantic import ValidationError
 

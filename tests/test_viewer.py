@@ -253,7 +253,7 @@ def ball_result(tmp_path_factory):
     root = tmp_path_factory.mktemp("viewer-cli")
     study = ball_study(root / "study").parent
     out = root / "out"
-    assert main(["reconstruct", str(study), "-o", str(out), "-k", "30", "--no-figure", "-q"]) == 0
+    assert main(["reconstruct", str(study), "-o", str(out), "-k", "30", "--method", "hull", "--no-figure", "-q"]) == 0
     return {"root": root, "study": study, "out": out}
 
 

@@ -14,7 +14,7 @@ from typing import Sequence, TextIO
 from . import __version__
 from .errors import AgreementWarning, AngiohullError, DicomGeometryWarning, InputWarning, QcaError, TreeWarning
 from .options import (AUTO_ENGINE, DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ENGINE_CHOICES, METHODS, PRESETS, RASTERISERS,
-                      REFINED_RESOLUTION, TORTUOSITY_LEVELS, TREE_KINDS)
+                      REFINED_RESOLUTION, TORTUOSITY_LEVELS, TREE_KINDS, chosen_method)
 
 # Only the light modules above are imported at start-up (``angiohull --help`` needs no NumPy); each
 # command imports what it uses. The options of a command that need a heavy module to be listed
@@ -38,8 +38,8 @@ class _Progress:
 
 def _add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resolution", "-k", type=int, default=None, metavar="K",
-                        help=f"lattice points per axis of the cube of interest (default {DEFAULT_RESOLUTION}, "
-                             f"{REFINED_RESOLUTION} with --preset refined)")
+                        help=f"lattice points per axis of the cube of interest (default {REFINED_RESOLUTION}; "
+                             f"{DEFAULT_RESOLUTION} for the hull's paper preset)")
     parser.add_argument("--threshold", type=float, default=DEFAULT_THRESHOLD_PX, metavar="PX",
                         help=f"keep a point when its projection is closer than PX to a mask pixel centre (default {DEFAULT_THRESHOLD_PX})")
     parser.add_argument("--engine", choices=ENGINE_CHOICES, default="auto",
@@ -51,14 +51,16 @@ def _add_reconstruction_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_beyond_paper_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--method", choices=METHODS, default="hull",
-                        help="hull (default): the visual hull, the paper's method (see --preset); tree "
-                             "(experimental, beyond the paper): the vessel tree from centerline correspondences "
-                             "across the views, tubes fitted to the masks (docs/tree-method.md); two views or more")
-    parser.add_argument("--preset", choices=PRESETS, default="paper",
-                        help="paper (default): the method as published; refined: specks removed from the masks, a finer "
-                             "lattice, small disconnected parts dropped and the hull trimmed to the vessel radii "
-                             "the views show (docs/beyond-the-paper.md)")
+    parser.add_argument("--method", choices=METHODS, default=None,
+                        help="tree (the default, beyond the paper; two views or more): the vessel tree from "
+                             "centerline correspondences across the views, tubes fitted to the masks "
+                             "(docs/tree-method.md); hull (the default with --preset or --min-views): the visual "
+                             "hull, the paper's method")
+    parser.add_argument("--preset", choices=PRESETS, default=None,
+                        help="how the hull is carved (picks --method hull when no method is named): paper (the "
+                             "hull's default): the method as published; refined: specks removed from the masks, a "
+                             "finer lattice, small disconnected parts dropped and the hull trimmed to the vessel "
+                             "radii the views show (docs/beyond-the-paper.md)")
     parser.add_argument("--calibrate", action="store_true",
                         help="first estimate a per-view image shift that makes the views agree (header "
                              "geometry off by pixels to tens of pixels); the shifts go to report.json")
@@ -66,7 +68,8 @@ def _add_beyond_paper_options(parser: argparse.ArgumentParser) -> None:
                         help="--calibrate, and also a per-view image scale (a magnification the header has wrong, "
                              "within 15 %%; three views or more)")
     parser.add_argument("--min-views", type=int, default=None, metavar="K",
-                        help="robust carving: keep a point when at least K views keep it (default: all, the paper)")
+                        help="robust carving of the hull (picks --method hull when no method is named): keep a point "
+                             "when at least K views keep it (default: all, the paper)")
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
@@ -132,6 +135,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true",
                    help="replace a non-empty OUT_DIR (an earlier demo's folder is replaced without it)")
     _add_reconstruction_options(p)
+    _add_beyond_paper_options(p)
 
     p = sub.add_parser("synth", help="generate a synthetic coronary tree study with ground truth",
                        description="Draw a synthetic coronary tree (seeded), render its masks in the given views, "
@@ -238,7 +242,18 @@ def _run_title(study, result, options, calibration) -> str:
             calibrated += f" and scales ({min(calibration.scales):.3f}-{max(calibration.scales):.3f})"
     name = f"{study.root.name} — " if study.root is not None and study.root.name else ""
     return (f"angiohull — {name}K={result.lattice.resolution}, threshold {options.threshold_px:g} px, engine "
-            f"{result.engine}, {result.preset} preset, {calibrated}")
+            f"{result.engine}, {_method_name(result.method, result.preset)}, {calibrated}")
+
+
+def _chosen_method(args) -> str:
+    """The method the command's flags choose (:func:`angiohull.options.chosen_method`)."""
+    return chosen_method(getattr(args, "method", None), getattr(args, "preset", None),
+                         getattr(args, "min_views", None), not getattr(args, "no_tree", False))
+
+
+def _method_name(method: str | None, preset: str | None) -> str:
+    """The method for a title: "tree method", or the hull's "paper preset" / "refined preset"."""
+    return "tree method" if method == "tree" else f"{preset or '?'} preset"
 
 
 def _viewer_views(study) -> list:
@@ -327,7 +342,7 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
     hint = workflow.two_view_hint(len(study.views), options.method)
     if hint:
         progress(hint)
-    what = f"{options.preset} preset" if options.method == "hull" else "tree method"
+    what = _method_name(options.method, options.preset)
     progress(f"reconstructing {len(study.views)} views ({what}) with engine {options.engine}")
     result = workflow.reconstruct_study(study, options, progress=progress)
     progress(f"kept {len(result.vessel_points_mm)} of {result.lattice.n_points} lattice points "
@@ -476,7 +491,9 @@ def _cmd_evaluate(args) -> int:
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=False, device=args.device,
                                  min_views=args.min_views, calibrate=args.calibrate,
                                  calibrate_scale=args.calibrate_scale, preset=args.preset,
-                                 tree=study.ground_truth_tree is not None or args.method == "tree", method=args.method)
+                                 tree=study.ground_truth_tree is not None
+                                 or _chosen_method(args) == "tree",
+                                 method=args.method)
     _, _, scores = _run_study(study, options, None, progress, figure=False, score=True)
     if args.json:
         print(json.dumps(scores))
@@ -496,7 +513,9 @@ def _cmd_demo(args) -> int:
     from .workflow import ReconstructOptions, folder_holds_only, output_folder
 
     _check_reconstruction_flags(args)
-    options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=True, device=args.device)
+    options = ReconstructOptions(args.resolution, args.threshold, args.engine, centerlines=True, device=args.device,
+                                 min_views=args.min_views, calibrate=args.calibrate,
+                                 calibrate_scale=args.calibrate_scale, preset=args.preset, method=args.method)
     _check_viewer_available()
     progress = _Progress(True)
     # the demo's own earlier output (run it twice) is replaced; any other non-empty folder needs --overwrite
@@ -771,7 +790,7 @@ def _cmd_view(args) -> int:
     threshold = options.get("threshold_px")
     threshold = f"{threshold:g}" if isinstance(threshold, (int, float)) else "?"
     title = (f"angiohull — {name}K={options.get('resolution', '?')}, threshold {threshold} px, "
-             f"engine {report.get('engine', '?')}, {options.get('preset', '?')} preset, "
+             f"engine {report.get('engine', '?')}, {_method_name(options.get('method'), options.get('preset'))}, "
              + ("calibrated" if options.get("calibrate") else "no calibration"))
     scores = report.get("scores")
     mesh = found.mesh
@@ -1116,8 +1135,10 @@ installed and ``ANGIOHULL_COMPILED`` is unset) for a single reconstruction."""
 def _kernels_pay(args) -> bool:
     """Whether numba's compiled kernels pay for themselves in this command: loading them costs about
     0.4 s per process (and a compile, once per installation), one reconstruction at K = 100 saves
-    about 15 ms; experiments, calibration and fine lattices save more than that (docs/engines.md)."""
-    return (args.command == "experiment" or bool(getattr(args, "calibrate", False))
+    about 15 ms; experiments, calibration, fine lattices and the tree method save more than that
+    (docs/engines.md)."""
+    tree = args.command in ("reconstruct", "evaluate", "demo") and _chosen_method(args) == "tree"
+    return (tree or args.command == "experiment" or bool(getattr(args, "calibrate", False))
             or (getattr(args, "resolution", None) or 0) >= KERNELS_FROM_RESOLUTION)
 
 

@@ -24,7 +24,7 @@ from . import __version__, compiled
 from .io import write_points_ply
 from .metrics import PAPER_DETECTOR_SPACING_MM, dice2d, dice2d_paper, paper_dilation_side_px, scores_3d
 from .rasterise import boundary_cells, cell_silhouette
-from .reconstruction import DEFAULT_RESOLUTION, DEFAULT_THRESHOLD_PX, ReconstructionResult, reconstruct
+from .reconstruction import DEFAULT_THRESHOLD_PX, ReconstructionResult, reconstruct
 from .reconstruction.calibration import (AGREEMENT_MIN_COVERAGE, Calibration, calibrate_shifts, shift_projection,
                                          view_coverage)
 from . import _validation as _v
@@ -49,7 +49,7 @@ __all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_a
 class ReconstructOptions:
     """Options of a study reconstruction (the CLI's flags)."""
 
-    resolution: int | None = DEFAULT_RESOLUTION  # K, lattice points per axis (None: the preset's)
+    resolution: int | None = None  # K, lattice points per axis (None: the preset's or the tree method's)
     threshold_px: float = DEFAULT_THRESHOLD_PX  # strict distance threshold, px
     engine: str = "auto"  # carving engine (auto: the fastest exact one)
     centerlines: bool = True  # extract centerline points
@@ -57,9 +57,9 @@ class ReconstructOptions:
     min_views: int | None = None  # robust carving: views that must keep a point (None: all, the paper)
     calibrate: bool = False  # estimate per-view image shifts first (calibrate_study)
     calibrate_scale: bool = False  # also per-view image scales (implies calibrate; three views or more)
-    preset: str = "paper"  # "paper" (as published) or "refined" (reconstruction.refine)
+    preset: str | None = None  # the hull's: "paper" (as published, its default) or "refined" (reconstruction.refine)
     tree: bool = True  # build the vessel tree (and, when writing outputs, its mesh, label volume and exports)
-    method: str = "hull"  # "hull" (the paper's visual hull) or "tree" (reconstruction.model, experimental)
+    method: str | None = None  # "tree" (reconstruction.model) or "hull" (the paper's); None: options.chosen_method
 
     def __post_init__(self) -> None:
         from .reconstruction import MAX_DENSE_RESOLUTION, check_threshold_px
@@ -74,8 +74,10 @@ class ReconstructOptions:
                                           f"{MAX_DENSE_RESOLUTION}], got {k}: K**3 points are carved")
         if self.min_views is not None:
             _v.positive_int(self.min_views, "min_views", error=ReconstructionError)
-        from .options import METHODS
+        from .options import METHODS, chosen_method
 
+        object.__setattr__(self, "method", chosen_method(self.method, self.preset, self.min_views, self.tree))
+        object.__setattr__(self, "preset", "paper" if self.preset is None else self.preset)
         if self.method not in METHODS:
             raise ReconstructionError(f"unknown method {self.method!r}; choose one of {list(METHODS)}")
         if self.method == "tree" and (self.preset != "paper" or self.min_views is not None):
@@ -181,8 +183,8 @@ def two_view_hint(n_views: int, method: str) -> str | None:
         return None
     return ("note: two views: their visual hull keeps phantom volume wherever two vessels' cones cross "
             "(generated trees in two clinical views, exact masks: Dice3D 56 % with the paper preset, 68 % refined); "
-            "--method tree rebuilds the tree from centerline correspondences instead (90 %; experimental, "
-            "docs/tree-method.md)")
+            "the tree method (the default without --method hull, --preset or --min-views) rebuilds the tree from "
+            "centerline correspondences instead (90 %, docs/tree-method.md)")
 
 
 def ambiguity_warning(calibration: Calibration, names: Sequence[str]) -> str | None:

@@ -135,8 +135,10 @@ class ReconstructionSettings(_Model):
                                       description="K, lattice points per axis (default: the preset's, 100 or 256)")
     threshold_px: float = Field(1.0, gt=0, description="strict distance threshold, px")
     preset: Literal["paper", "refined"] = Field("paper", description="the method as published, or refined (beyond the paper)")
-    method: Literal["hull", "tree"] = Field("hull", description="hull (the paper's visual hull, see preset) or tree "
-                                                               "(experimental: centerline correspondences, tubes; 2+ views)")
+    method: Literal["hull", "tree"] = Field("hull", description="hull (the paper's visual hull, see preset; the "
+                                                               "paper's experiments keep it by default) or tree "
+                                                               "(centerline correspondences, tubes; 2+ views; "
+                                                               "reconstruct's default)")
     calibrate: bool = Field(False, description="estimate per-view image shifts first (beyond the paper)")
     calibrate_scale: bool = Field(False, description="also per-view image scales (implies calibrate; 3+ views)")
     min_views: Optional[int] = Field(None, ge=1, description="robust carving: views that must keep a point (default all)")

@@ -173,9 +173,10 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
                 resolution: int | None = None, threshold_px: float = DEFAULT_THRESHOLD_PX,
                 engine: str = "auto", centerlines: bool = True, view_names: Sequence[str] | None = None,
                 half_edge_mm: float | None = None, allow_empty: bool = False, device: str = "cpu",
-                min_views: int | None = None, preset: str = "paper", tree: bool = True, method: str = "hull",
+                min_views: int | None = None, preset: str | None = None, tree: bool = True, method: str | None = None,
                 progress: Callable[[str], None] | None = None) -> ReconstructionResult:
-    """Carve the visual hull of the masks and, optionally, its centerline points and vessel tree.
+    """Reconstruct the vessels from the views: the tree method by default (``method``), or the
+    visual hull of the masks (the paper's method) with, optionally, its centerline points and tree.
 
     Parameters
     ----------
@@ -187,7 +188,7 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         ``image_shape``.
     resolution : int, optional, keyword-only
         K, lattice points per axis of the cube of interest (default: the preset's, 100 for
-        ``"paper"`` as in the paper, 256 for ``"refined"``).
+        ``"paper"`` as in the paper, 256 for ``"refined"`` and the tree method).
     threshold_px : float, keyword-only
         A point survives a view when its projection is strictly closer than this to a mask pixel
         centre (default 1.0; at most :data:`MAX_THRESHOLD_PX`).
@@ -209,19 +210,22 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     min_views : int, optional, keyword-only
         Robust carving (beyond the paper): keep a point when at least this many views keep it, so
         that a view with a false-negative segmentation or a missing segment does not carve the
-        vessel away. Default None: every view must keep it (the paper's rule).
-    preset : {"paper", "refined"}, keyword-only
-        ``"paper"`` (default): the method as published. ``"refined"`` (beyond the paper, see
-        :mod:`.refine`): specks removed from the masks, a finer lattice, small disconnected parts
-        dropped and the hull trimmed to the vessel radii the views show.
-    method : {"hull", "tree"}, keyword-only
-        ``"hull"`` (default): the visual hull of ``preset``. ``"tree"`` (beyond the paper,
-        experimental; :mod:`.model`): the hull of the views is carved on the lattice (default
+        vessel away. Default None: every view must keep it (the paper's rule). A hull option:
+        given without ``method``, it picks the hull.
+    preset : {"paper", "refined"}, optional, keyword-only
+        How the hull is carved (a hull option: given without ``method``, it picks the hull).
+        ``"paper"`` (the hull's default): the method as published. ``"refined"`` (beyond the paper,
+        see :mod:`.refine`): specks removed from the masks, a finer lattice, small disconnected
+        parts dropped and the hull trimmed to the vessel radii the views show.
+    method : {"hull", "tree"}, optional, keyword-only
+        ``"tree"`` (the default when no hull option is given, :func:`angiohull.options.chosen_method`;
+        beyond the paper, :mod:`.model`): the hull of the views is carved on the lattice (default
         K = 256), then the vessel tree is built from centerline correspondences across the views
         (with three views or more, from the refined hull's skeleton) and tubes fitted to the masks;
         the vessel points are the lattice points inside those tubes, the centerline points the
-        tree's. Needs two views or more; ``preset``, ``min_views`` and
-        ``tree`` do not apply (the tree is the result).
+        tree's. Needs two views or more; ``preset`` (but ``"paper"``), ``min_views`` and ``tree``
+        do not apply (the tree is the result). ``"hull"``: the visual hull of ``preset``, the
+        paper's method (the default until 2026-12-07; docs/results/tree-method.md compares them).
     progress : callable, optional, keyword-only
         Called with a line per stage of the tree method.
     tree : bool, keyword-only
@@ -234,6 +238,8 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     ReconstructionResult
     """
     checked_masks, names = _check_inputs(projections, masks, view_names)
+    method = options.chosen_method(method, preset, min_views, tree)
+    preset = "paper" if preset is None else preset
     if method not in METHODS:
         raise ReconstructionError(f"unknown method {method!r}; choose one of {list(METHODS)}")
     if method == "tree":
@@ -369,9 +375,15 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
         if progress:
             progress(f"{len(projections)} views: the refined hull ({0 if initial is None else len(initial)} points) "
                      f"starts the tree")
-    points, vessel_tree, build = model_tree(projections, masks, lattice, support_points_mm=outcome.points_mm,
-                                            initial_points_mm=initial if initial is not None and len(initial) else None,
-                                            progress=progress)
+    try:
+        points, vessel_tree, build = model_tree(projections, masks, lattice, support_points_mm=outcome.points_mm,
+                                                initial_points_mm=initial if initial is not None and len(initial)
+                                                else None, progress=progress)
+    except ReconstructionError as exc:  # the tree method is the default: say what else there is
+        if type(exc) is not ReconstructionError:
+            raise
+        raise ReconstructionError(f"{exc} (the tree method, which needs vessels in the masks and a lattice fine "
+                                  f"enough for them; method 'hull' carves the visual hull instead)") from None
     timings.update({f"tree_{k}": v for k, v in build.timings_s.items()})
     timings["reconstruction"] = sum(timings.values())
     timings["total"] = timings["reconstruction"]
