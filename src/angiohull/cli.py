@@ -1136,8 +1136,10 @@ def _kernels_pay(args) -> bool:
     """Whether numba's compiled kernels pay for themselves in this command: loading them costs about
     0.4 s per process (and a compile, once per installation), one reconstruction at K = 100 saves
     about 15 ms; experiments, calibration, fine lattices and the tree method save more than that
-    (docs/engines.md)."""
-    tree = args.command in ("reconstruct", "evaluate", "demo") and _chosen_method(args) == "tree"
+    (docs/engines.md): 14-32 % of the tree method's time with two views. Not the demo's three
+    views: the tree method's demo took 4.2-4.6 s with the kernels loaded and 4.0-4.5 s without them
+    (2026-12-07, 2 cores), and its first run would compile them (25 s, once)."""
+    tree = args.command in ("reconstruct", "evaluate") and _chosen_method(args) == "tree"
     return (tree or args.command == "experiment" or bool(getattr(args, "calibrate", False))
             or (getattr(args, "resolution", None) or 0) >= KERNELS_FROM_RESOLUTION)
 
