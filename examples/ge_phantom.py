@@ -9,9 +9,10 @@ It runs the command line exactly as a user would (the commands are printed first
 
     angiohull dicom-info IM1.dcm IM2.dcm IM5.dcm
     angiohull study-from-dicom IM1.dcm IM2.dcm IM5.dcm -o OUT/study --segment --overwrite
-    angiohull reconstruct OUT/study -o OUT/reconstruction --overwrite
+    angiohull reconstruct OUT/study -o OUT/reconstruction --method hull --overwrite
 
-then prints, per view, the plain reprojection Dice2D of report.json with the mask pixels the
+(the paper's visual hull: how much of each mask it keeps shows whether the views agree; docs/dicom.md
+gives the tree method's numbers beside it) then prints, per view, the plain reprojection Dice2D of report.json with the mask pixels the
 reconstruction covers and the reprojected pixels that fall on the mask, and draws a figure: each
 chosen frame with its segmentation, and each mask against the reconstruction's reprojection.
 
@@ -101,7 +102,7 @@ def main() -> None:
     run(["dicom-info", *files])
     # --overwrite: the example owns its output folder, so a second run replaces the first one's results
     run(["study-from-dicom", *files, "-o", str(out / "study"), "--segment", "--overwrite"])
-    run(["reconstruct", str(out / "study"), "-o", str(out / "reconstruction"), "--overwrite"])
+    run(["reconstruct", str(out / "study"), "-o", str(out / "reconstruction"), "--method", "hull", "--overwrite"])
 
     report = json.loads((out / "reconstruction" / "report.json").read_text())
     warnings.simplefilter("ignore", DicomGeometryWarning)  # the commands above have shown them
