@@ -9,8 +9,9 @@ Runs, with the same defaults for every case (:class:`angiohull.qca.QcaSettings()
   RAO 30 CAU 30) and from 2 (the first two), each from the exact masks and from segmented
   angiograms (rendered with :func:`angiohull.synthetic.angiogram.render_angiogram`, collimator
   8 px, seeded; segmented by :func:`angiohull.segmentation.segment_vessels` with its defaults);
-  the 2-view cases also with the tree method (``method="tree"``, docs/tree-method.md), the one
-  built for two views;
+  every case also with the tree method (``method="tree"``, docs/tree-method.md), built for two
+  views and the default method since 2026-12-07 (with three views it fits the refined hull's
+  tree and takes its lumen from the fitted tubes);
 * :func:`angiohull.qca.analyse_tree` on each reconstructed tree, compared with the truth:
 
   - every true stenosis: its MLD point (the true centerline point of least radius inside the
@@ -60,7 +61,9 @@ VIEWS3 = ("RAO 30 CRA 30", "LAO 60 CRA 30", "RAO 30 CAU 30")
 SETUPS = (("3 views", "masks", "hull", "tree"), ("3 views", "segmented", "hull", "tree"),
           ("3 views", "segmented", "hull", "images"), ("2 views", "masks", "hull", "tree"),
           ("2 views", "segmented", "hull", "tree"), ("2 views", "masks", "tree", "tree"),
-          ("2 views", "segmented", "tree", "tree"), ("2 views", "segmented", "tree", "images"))
+          ("2 views", "segmented", "tree", "tree"), ("2 views", "segmented", "tree", "images"),
+          ("3 views", "masks", "tree", "tree"), ("3 views", "segmented", "tree", "tree"),
+          ("3 views", "segmented", "tree", "images"))
 MATCH_MM = 5.0
 END_MM = 8.0  # a branch length's error is split into its first and last END_MM and the rest between
 CAAS = {  # CAAS 3D bifurcation QCA on phantoms (EuroIntervention 2012), error mean +- sd
