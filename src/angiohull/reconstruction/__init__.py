@@ -336,7 +336,7 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
 
     if len(projections) < 2:
         raise ReconstructionError(f"method 'tree' matches centerlines across views and needs two views or more, "
-                                  f"got {len(projections)}; use method='hull'")
+                                  f"got {len(projections)}; use method='hull' (--method hull)")
     if min_views is not None:
         raise ReconstructionError("min_views applies to method 'hull' only; the tree method reads every view")
     if preset != "paper":
