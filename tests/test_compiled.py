@@ -452,3 +452,28 @@ def test_spoiled_runs_equal_the_numpy_path(seed):
                 for a, b in zip(got if sides else [got], reference if sides else [reference]):
                     np.testing.assert_array_equal(a, b)
                 assert (got[0] if sides else got).any()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_teasar_graph_equals_the_numpy_path(seed):
+    """Random voxel sets (sparse and dense, touching the box's faces, a single voxel, none) with
+    random depths, whole-number ones among them (equal costs): the TEASAR graph's CSR arrays,
+    compiled and NumPy (``coo_matrix(...).tocsr()``), are the same, dtypes and flags included."""
+    from angiohull.tree.voxels import path_cost_graph
+
+    rng = np.random.default_rng(seed)
+    for trial in range(12):
+        shape = tuple(int(s) for s in rng.integers(1, 14, 3))
+        volume = rng.random(shape) < rng.uniform(0.0, 1.0)
+        if trial == 0:
+            volume[:] = False
+            volume[tuple(rng.integers(0, shape))] = True
+        voxels = np.argwhere(volume)
+        depth = rng.uniform(0.5, 6.0, len(voxels)) if trial % 2 else rng.integers(1, 4, len(voxels)).astype(float)
+        got, reference = _both(lambda: path_cost_graph(voxels, shape, depth))
+        assert got.shape == reference.shape
+        for name in ("indptr", "indices", "data"):
+            assert getattr(got, name).dtype == getattr(reference, name).dtype
+            np.testing.assert_array_equal(getattr(got, name), getattr(reference, name))
+        assert got.has_sorted_indices == reference.has_sorted_indices
+        assert got.has_canonical_format == reference.has_canonical_format

@@ -1080,3 +1080,30 @@ def spoiled_runs(uv, rho, normal, arc, radius, owner, image_arc, margin_px, marg
                                     left[a] = True
                                 if across + chord > rho_a:
                                     right[a] = True
+
+
+# --- the TEASAR paths' graph (angiohull.tree.voxels.path_cost_graph) ----------------------------------
+
+@numba.njit(**_JIT)
+def forward_cost_rows(flat, index, deltas, lengths, depth):  # pragma: no cover - compiled
+    """The CSR rows (``indptr``, ``tails`` (int32), ``cost``) of the edges of
+    :func:`angiohull.tree.voxels.neighbour_edges`: voxel ``h`` (flat index ``flat[h]`` into the
+    padded grid whose flat ``index`` holds 1 + each voxel's position, 0 for none) and each voxel at
+    ``flat[h] + deltas[o]``, offset after offset, cost ``lengths[o] / (0.5 * (depth[h] +
+    depth[t]))**2`` (the square a product, as NumPy's ``** 2``)."""
+    n = flat.size
+    indptr = np.zeros(n + 1, np.int32)
+    tails = np.empty(deltas.size * n, np.int32)
+    cost = np.empty(deltas.size * n, np.float64)
+    e = 0
+    for h in range(n):
+        f = flat[h]
+        for o in range(deltas.size):
+            t = index[f + deltas[o]] - 1
+            if t >= 0:
+                mean = 0.5 * (depth[h] + depth[t])
+                tails[e] = t
+                cost[e] = lengths[o] / (mean * mean)
+                e += 1
+        indptr[h + 1] = e
+    return indptr, tails[:e].copy(), cost[:e].copy()

@@ -23,12 +23,11 @@ business (:func:`angiohull.tree.skeleton.tree_from_skeleton`).
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sparse
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from ..errors import TreeError
-from .voxels import coordinates, dilated, distance_to, neighbour_edges
+from .voxels import coordinates, dilated, distance_to, path_cost_graph
 
 __all__ = ["teasar_skeleton"]
 
@@ -72,9 +71,7 @@ def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5, ball_voxels:
             raise TreeError(f"dbf must hold a distance > 0 for each of the volume's {n} voxels, got shape {dbf.shape}")
 
     # 2. the voxel graph and its shortest-path forest from each part's deepest voxel
-    heads, tails, lengths = neighbour_edges(voxels, volume.shape)
-    cost = lengths / (0.5 * (dbf[heads] + dbf[tails])) ** 2
-    graph = sparse.coo_matrix((cost, (heads, tails)), shape=(n, n)).tocsr()
+    graph = path_cost_graph(voxels, volume.shape, dbf)
     parts, label = connected_components(graph, directed=False)
     by_part = np.lexsort((-dbf, label))  # each part's voxels, deepest first
     roots = by_part[np.flatnonzero(np.r_[True, np.diff(label[by_part]) != 0])]

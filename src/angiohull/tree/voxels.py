@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["FORWARD_OFFSETS", "coordinates", "neighbour_edges", "dilated", "distance_to"]
+__all__ = ["FORWARD_OFFSETS", "coordinates", "neighbour_edges", "path_cost_graph", "dilated", "distance_to"]
 
 FORWARD_OFFSETS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
                             if (i, j, k) > (0, 0, 0)], dtype=np.int64)
@@ -28,18 +28,47 @@ def neighbour_edges(voxels: np.ndarray, shape: tuple[int, ...]) -> tuple[np.ndar
     ascending within an offset."""
     voxels = np.asarray(voxels, dtype=np.int64)
     n = len(voxels)
-    # flat indices into the grid padded by one voxel on every side, so that no neighbour falls
-    # outside it; the index volume holds 1 + the voxel's position (0: no voxel), and np.zeros
-    # leaves the pages the voxels never touch unallocated
+    flat, index, strides = _padded_index(voxels, shape)
+    neighbour = index[(flat[None, :] + (FORWARD_OFFSETS @ strides)[:, None]).ravel()]  # 13 N: 1 + index, 0 for none
+    found = np.flatnonzero(neighbour != 0)  # offset by offset, heads ascending
+    which = found // max(n, 1)
+    return found - which * n, neighbour[found].astype(np.int64) - 1, _FORWARD_LENGTHS[which]
+
+
+def _padded_index(voxels: np.ndarray, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The voxels' flat indices into the grid padded by one voxel on every side (so that no
+    neighbour falls outside it), the flat index volume of that grid (1 + the voxel's position, 0:
+    no voxel; np.zeros leaves the pages the voxels never touch unallocated) and its strides."""
+    n = len(voxels)
     padded = np.asarray(shape, dtype=np.int64) + 2
     strides = np.array([padded[1] * padded[2], padded[2], 1], dtype=np.int64)
     flat = (voxels[:, 0] + 1) * strides[0] + (voxels[:, 1] + 1) * strides[1] + (voxels[:, 2] + 1)
     index = np.zeros(int(np.prod(padded)), dtype=np.int32 if n < 2**31 - 1 else np.int64)
     index[flat] = np.arange(1, n + 1, dtype=index.dtype)
-    neighbour = index[(flat[None, :] + (FORWARD_OFFSETS @ strides)[:, None]).ravel()]  # 13 N: 1 + index, 0 for none
-    found = np.flatnonzero(neighbour != 0)  # offset by offset, heads ascending
-    which = found // max(n, 1)
-    return found - which * n, neighbour[found].astype(np.int64) - 1, _FORWARD_LENGTHS[which]
+    return flat, index, strides
+
+
+def path_cost_graph(voxels: np.ndarray, shape: tuple[int, ...], depth: np.ndarray):
+    """The graph of :func:`angiohull.tree.teasar.teasar_skeleton` (step 2): the edges of
+    :func:`neighbour_edges`, each once (head < tail), costing ``length / (mean depth of its two
+    voxels)**2``, as a CSR matrix, the one ``coo_matrix((cost, (heads, tails))).tocsr()`` gives.
+    The compiled kernel builds its rows directly: a row's edges in :data:`FORWARD_OFFSETS` order,
+    which is that of the tails (C order), as ``tocsr`` leaves them; the same costs."""
+    import scipy.sparse as sparse
+
+    from ..compiled import kernels
+
+    voxels = np.asarray(voxels, dtype=np.int64)
+    n = len(voxels)
+    compiled = kernels()
+    if compiled is not None and 13 * n < 2**31 - 1:
+        flat, index, strides = _padded_index(voxels, shape)
+        indptr, tails, cost = compiled.forward_cost_rows(flat, index, FORWARD_OFFSETS @ strides, _FORWARD_LENGTHS,
+                                                         np.ascontiguousarray(depth, dtype=np.float64))
+        return sparse.csr_matrix((cost, tails, indptr), shape=(n, n))
+    heads, tails, lengths = neighbour_edges(voxels, shape)
+    cost = lengths / (0.5 * (depth[heads] + depth[tails])) ** 2
+    return sparse.coo_matrix((cost, (heads, tails)), shape=(n, n)).tocsr()
 
 
 def dilated(volume: np.ndarray, cells: int = 1) -> np.ndarray:
