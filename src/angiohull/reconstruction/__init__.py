@@ -21,7 +21,7 @@ from .cube import MAX_DENSE_RESOLUTION, Lattice
 from .engines import ENGINES, CarveOutcome
 from . import hierarchical  # noqa: F401  (registers the lookup and octree engines)
 from .gpu import CUDA_ENGINES, carve_cuda
-from .refine import REFINED, clean_mask, refine_hull
+from .refine import REFINED, clean_mask, refine_hull, without_small_components
 from .vessel_tree import TreeBuild, hull_tree
 
 __all__ = [
@@ -332,7 +332,7 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
                       half_edge_mm: float | None, device: str, min_views: int | None, preset: str,
                       progress: Callable[[str], None] | None, allow_empty: bool = False) -> ReconstructionResult:
     """``reconstruct(method="tree")`` (see :func:`reconstruct`)."""
-    from .model import model_tree
+    from .model import MODEL_SETTINGS, model_tree
 
     if len(projections) < 2:
         raise ReconstructionError(f"method 'tree' matches centerlines across views and needs two views or more, "
@@ -344,6 +344,17 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
                                   f"with method 'tree'")
     threshold, engine = _checked_carving(threshold_px, engine, device)
     timings: dict[str, float] = {}
+    # specks (a noisy segmentation's salt): no other view matches them, and the hull they carve slows
+    # every bridge search (docs/tree-method.md, step 1). Two views: a mask's small pieces go before
+    # anything reads it. Three or more: the support hull the bridges search is carved without them
+    # (the refined hull that starts the tree removes specks its own way)
+    speckless = [without_small_components(m, MODEL_SETTINGS.speck_px) for m in masks]
+    empty = [names[i] for i, m in enumerate(speckless) if not m.any()]
+    if empty and not allow_empty:
+        raise ReconstructionError(f"view {empty[0]!r}: the mask holds no piece of {MODEL_SETTINGS.speck_px} pixels "
+                                  f"or more (only specks); the tree method needs the vessels")
+    if len(projections) == 2:
+        masks = speckless
     start = time.perf_counter()
     lattice = Lattice(cube_half_edge_mm(projections) if half_edge_mm is None else half_edge_mm,
                       REFINED.resolution if resolution is None else resolution)
@@ -353,6 +364,12 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
         outcome = carve_cuda(engine, lattice, list(projections), masks, threshold_px=threshold, min_views=None)
     else:
         outcome = ENGINES[engine](lattice, list(projections), masks, threshold_px=threshold, min_views=None)
+    support = outcome.points_mm
+    if len(projections) > 2 and any(not np.array_equal(a, b) for a, b in zip(masks, speckless)):
+        support = (carve_cuda(engine, lattice, list(projections), speckless, threshold_px=threshold, min_views=None)
+                   if device == "cuda" else
+                   ENGINES[engine](lattice, list(projections), speckless, threshold_px=threshold, min_views=None)
+                   ).points_mm
     timings["carve"] = time.perf_counter() - start
     order = outcome.order if outcome.order is not None else tuple(range(len(names)))
     if len(outcome.points_mm) == 0:
@@ -376,7 +393,7 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
             progress(f"{len(projections)} views: the refined hull ({0 if initial is None else len(initial)} points) "
                      f"starts the tree")
     try:
-        points, vessel_tree, build = model_tree(projections, masks, lattice, support_points_mm=outcome.points_mm,
+        points, vessel_tree, build = model_tree(projections, masks, lattice, support_points_mm=support,
                                                 initial_points_mm=initial if initial is not None and len(initial)
                                                 else None, progress=progress)
     except ReconstructionError as exc:  # the tree method is the default: say what else there is

@@ -166,6 +166,23 @@ def clean_mask(mask: np.ndarray, min_neighbours: int = 2, fill_neighbours: int =
     return out
 
 
+def without_small_components(mask: np.ndarray, min_pixels: int) -> np.ndarray:
+    """A bool mask without its 8-connected pieces of fewer than ``min_pixels`` pixels: specks of a
+    noisy segmentation, which no other view can match, go; a mask with none comes back unchanged.
+
+    >>> m = np.zeros((6, 8), bool); m[1, 1] = m[2, 2] = True; m[4, 1:7] = True
+    >>> without_small_components(m, 3).astype(int)[[1, 2, 4]].sum(axis=1)
+    array([0, 0, 6])
+    """
+    mask = np.asarray(mask, dtype=bool)
+    labels, count = ndi.label(mask, structure=np.ones((3, 3), dtype=bool))
+    if count == 0:
+        return mask.copy()
+    keep = np.bincount(labels.ravel(), minlength=count + 1) >= min_pixels
+    keep[0] = False
+    return keep[labels]
+
+
 def centreline_branches(centreline: np.ndarray) -> np.ndarray:
     """Label the branches of a 2D centreline (bool image): pixels between junctions.
 
