@@ -231,7 +231,9 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     tree : bool, keyword-only
         Also build the vessel tree (:func:`.vessel_tree.hull_tree`: the hull's skeleton, centres
         and radii fitted to the views; ``result.tree``). When no tree can be built (a hull too
-        small for a skeleton), ``result.tree`` is None and ``result.tree_error`` says why.
+        small for a skeleton), ``result.tree`` is None and ``result.tree_error`` says why. The
+        hull's option: ``tree=False`` without ``method`` picks the hull (the tree method's result
+        is its tree).
 
     Returns
     -------
