@@ -284,6 +284,28 @@ def _near_mask(m, mask, rows, cols, threshold, reach, x, y, z, distances, view, 
 # --- nearest with ties (angiohull.reconstruction.nearest) ----------------------------------------
 
 @numba.njit(**_JIT)
+def _cell_buckets(xy, lo0, lo1, cell, n0, n1):  # pragma: no cover - compiled
+    """The 2D points ``xy`` binned into the ``n0`` x ``n1`` square cells of edge ``cell`` from
+    (``lo0``, ``lo1``): each point's cell (``where``), and the points of cell ``c`` as
+    ``order[start[c]:start[c + 1]]``, in their index order (a counting sort)."""
+    n = xy.shape[0]
+    where = np.empty(n, np.int64)
+    start = np.zeros(n0 * n1 + 1, np.int64)
+    for p in range(n):
+        c = min(int((xy[p, 0] - lo0) / cell), n0 - 1) * n1 + min(int((xy[p, 1] - lo1) / cell), n1 - 1)
+        where[p] = c
+        start[c + 1] += 1
+    for c in range(n0 * n1):
+        start[c + 1] += start[c]
+    order = np.empty(n, np.int64)
+    fill = start[:-1].copy()
+    for p in range(n):
+        order[fill[where[p]]] = p
+        fill[where[p]] += 1
+    return where, start, order
+
+
+@numba.njit(**_JIT)
 def nearest_2d_with_ties(points, query, tie, rank, cell):  # pragma: no cover - compiled
     """For each query point, the distance to the nearest of ``points`` (N >= 1, finite, 2D) and,
     of the points within ``tie`` of that distance, the one of lowest ``rank`` (its index).
@@ -303,19 +325,7 @@ def nearest_2d_with_ties(points, query, tie, rank, cell):  # pragma: no cover - 
         hi1 = max(hi1, points[p, 1])
     n0 = int((hi0 - lo0) / cell) + 1
     n1 = int((hi1 - lo1) / cell) + 1
-    start = np.zeros(n0 * n1 + 1, np.int64)
-    where = np.empty(n, np.int64)
-    for p in range(n):
-        c = min(int((points[p, 0] - lo0) / cell), n0 - 1) * n1 + min(int((points[p, 1] - lo1) / cell), n1 - 1)
-        where[p] = c
-        start[c + 1] += 1
-    for c in range(n0 * n1):
-        start[c + 1] += start[c]
-    order = np.empty(n, np.int64)
-    fill = start[:-1].copy()
-    for p in range(n):
-        order[fill[where[p]]] = p
-        fill[where[p]] += 1
+    where, start, order = _cell_buckets(points, lo0, lo1, cell, n0, n1)
     m = query.shape[0]
     distance = np.empty(m, np.float64)
     index = np.empty(m, np.int64)
@@ -1029,19 +1039,7 @@ def spoiled_runs(uv, rho, normal, arc, radius, owner, image_arc, margin_px, marg
         cell *= 2.0
     n0 = int((hi0 - lo0) / cell) + 1
     n1 = int((hi1 - lo1) / cell) + 1
-    where = np.empty(n, np.int64)
-    start = np.zeros(n0 * n1 + 1, np.int64)
-    for p in range(n):
-        c = min(int((uv[p, 0] - lo0) / cell), n0 - 1) * n1 + min(int((uv[p, 1] - lo1) / cell), n1 - 1)
-        where[p] = c
-        start[c + 1] += 1
-    for c in range(n0 * n1):
-        start[c + 1] += start[c]
-    order = np.empty(n, np.int64)
-    fill = start[:-1].copy()
-    for p in range(n):
-        order[fill[where[p]]] = p
-        fill[where[p]] += 1
+    where, start, order = _cell_buckets(uv, lo0, lo1, cell, n0, n1)
     for i in range(n):
         a0 = where[i] // n1
         b0 = where[i] - a0 * n1
