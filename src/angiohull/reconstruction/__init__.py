@@ -361,17 +361,16 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
     lattice = Lattice(cube_half_edge_mm(projections) if half_edge_mm is None else half_edge_mm,
                       REFINED.resolution if resolution is None else resolution)
     timings["cube"] = time.perf_counter() - start
+    def carved(views_masks: list[np.ndarray]) -> CarveOutcome:
+        if device == "cuda":
+            return carve_cuda(engine, lattice, list(projections), views_masks, threshold_px=threshold, min_views=None)
+        return ENGINES[engine](lattice, list(projections), views_masks, threshold_px=threshold, min_views=None)
+
     start = time.perf_counter()
-    if device == "cuda":
-        outcome = carve_cuda(engine, lattice, list(projections), masks, threshold_px=threshold, min_views=None)
-    else:
-        outcome = ENGINES[engine](lattice, list(projections), masks, threshold_px=threshold, min_views=None)
+    outcome = carved(masks)
     support = outcome.points_mm
     if len(projections) > 2 and any(not np.array_equal(a, b) for a, b in zip(masks, speckless)):
-        support = (carve_cuda(engine, lattice, list(projections), speckless, threshold_px=threshold, min_views=None)
-                   if device == "cuda" else
-                   ENGINES[engine](lattice, list(projections), speckless, threshold_px=threshold, min_views=None)
-                   ).points_mm
+        support = carved(speckless).points_mm
     timings["carve"] = time.perf_counter() - start
     order = outcome.order if outcome.order is not None else tuple(range(len(names)))
     if len(outcome.points_mm) == 0:
