@@ -670,13 +670,12 @@ def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *,
     compiled = kernels()
     for k in range(views):
         rho = radius * sections.px_per_mm[k]
+        image_arc = np.zeros(n)
+        if image_path:  # the path between two points of a branch in the image (the loop rule below)
+            step = np.linalg.norm(np.diff(sections.uv[k], axis=0), axis=1)
+            step[arrays.starts[1:] - 1] = 0.0  # no step from one branch's last point to the next one's first
+            image_arc = np.concatenate([[0.0], np.cumsum(step)])
         if compiled is not None:  # the same pairs, rules and arithmetic, pair by pair (see spoiled_runs)
-            if image_path:
-                step = np.linalg.norm(np.diff(sections.uv[k], axis=0), axis=1)
-                step[arrays.starts[1:] - 1] = 0.0
-                image_arc = np.concatenate([[0.0], np.cumsum(step)])
-            else:
-                image_arc = np.zeros(n)
             compiled.spoiled_runs(np.ascontiguousarray(sections.uv[k]), np.ascontiguousarray(rho),
                                   np.ascontiguousarray(sections.normal_px[k]), arc, np.ascontiguousarray(radius),
                                   owner.astype(np.int64), image_arc, float(margin), float(settings.overlap_margin_mm),
@@ -697,9 +696,6 @@ def _overlaps(sections: _Sections, arrays: "_Arrays", settings: TreeSettings, *,
             # along one branch: a loop crossing itself, where the image path between the two points
             # is longer than their discs reach (a straight, foreshortened stretch's points are near
             # in the image but so is the path between them)
-            step = np.linalg.norm(np.diff(sections.uv[k], axis=0), axis=1)
-            step[arrays.starts[1:] - 1] = 0.0  # no step from one branch's last point to the next one's first
-            image_arc = np.concatenate([[0.0], np.cumsum(step)])
             loop &= np.abs(image_arc[i] - image_arc[j]) > rho[i] + rho[j] + margin
         hit = (owner[i] != owner[j]) | loop
         i, j, du, dv = i[hit], j[hit], du[hit], dv[hit]
