@@ -1253,6 +1253,36 @@ def test_a_forked_build_returns_its_result_and_a_failed_or_abandoned_one_nothing
 
 @pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="os.fork is not available on this platform")
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")  # Python 3.12+: a fork under pytest-xdist's threads
+def test_builds_in_processes_come_back_in_order_from_a_process_each_up_to_twice_the_cpus(monkeypatch):
+    import os
+
+    from angiohull.reconstruction.model import forking
+
+    here = os.getpid()
+    tasks = [lambda k=k: (k * k, os.getpid()) for k in range(7)]
+    monkeypatch.setattr(forking, "_can_fork", lambda: True)
+    monkeypatch.setattr(forking, "_cpus", lambda: 2)
+    results = forking._in_processes(tasks, True)
+    assert [value for value, _ in results] == [k * k for k in range(7)]
+    pids = [pid for _, pid in results]
+    # four processes (twice the CPUs) in runs of consecutive tasks: 1, 2, 2 and 2 tasks, the first run here
+    assert pids[0] == here and len(set(pids)) == 4 and here not in pids[1:]
+    assert [len(list(group)) for _, group in __import__("itertools").groupby(pids)] == [1, 2, 2, 2]
+    monkeypatch.setattr(forking, "_cpus", lambda: 16)
+    assert len({pid for _, pid in forking._in_processes(tasks[:3], True)}) == 3  # a process per task
+
+    def only_here(k):
+        if os.getpid() != here:
+            raise RuntimeError("a build that fails in a child")
+        return k
+
+    # a child that fails has its run built here; without fork everything is built here
+    assert forking._in_processes([lambda k=k: only_here(k) for k in range(5)], True) == list(range(5))
+    assert forking._in_processes([lambda k=k: only_here(k) for k in range(5)], False) == list(range(5))
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="os.fork is not available on this platform")
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # Python 3.12+: a fork under pytest-xdist's threads
 def test_the_alternative_tree_built_in_a_forked_process_is_the_one_built_here(monkeypatch):
     from angiohull.reconstruction.model import _can_fork, forking
 

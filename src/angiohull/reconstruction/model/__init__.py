@@ -84,8 +84,9 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    shorter tree was the nearer to the truth in 85 % of the pairs more than 1 mm apart, the better
    agreement in 64 % (docs/tree-method.md). On Linux with two CPUs or more and no other Python
    thread (``fork_alternatives``, :func:`.forking._can_fork`), the alternative matchings' trees are
-   built in a forked child while this process builds the first (the same trees: the child runs the
-   same code on the same arrays and sends its trees back pickled; if it fails they are built here).
+   built in forked children while this process builds the first, a process per tree up to twice
+   the CPUs (:func:`.forking._in_processes`; the same trees: a child runs the same code on the
+   same arrays and sends its trees back pickled; if it fails they are built here).
    No Python thread is running, so none holds a lock the child would need; the BLAS library's own
    threads are fork-safe (multiprocessing's fork start method relies on it too).
    **Hypotheses of a wrong pairing** (two views, ``hypotheses``): a tree that agrees less than
@@ -102,7 +103,7 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    (many hypotheses, each a little different, would otherwise win by noise: on the segmented
    angiograms of the benchmark, every hypothesis of every tree tried and the best kept put the
    centerline 0.590 mm off against 0.575 without any). The hypotheses of every matching's tree are
-   built after those trees, half of them in a forked child (as the alternative matchings' trees).
+   built after those trees, each in a process of its own (as the alternative matchings' trees).
 5. **Lumen points**: the lattice points inside the fitted tree's tubes.
 
 Arrays and projections in, points and a tree out; nothing here reads files.
@@ -125,7 +126,7 @@ from ..vessel_tree import TREE_SETTINGS, SupportBridge, TreeBuild, TreeSettings,
 from .graph2d import CenterlineGraph2D, centerline_graph
 from .agreement import mask_agreement, suspect_branches, tube_silhouette
 from .matching import MATCH_SETTINGS, Avoid, MatchSettings, ViewData, anchored_match, mask_core, match_pixels
-from .forking import _can_fork, _ForkedBuilds, _in_two_processes  # noqa: F401 (the tests reach them here)
+from .forking import _can_fork, _ForkedBuilds, _in_processes  # noqa: F401 (the tests reach them here)
 from .tubes import lattice_points_in_tubes
 # step 4's rules (the tests reach the private ones here too)
 from .pruning import (_DiscPairs, _explained_pruning, _holding, _kept, _nearest_discs, _tube_segments,  # noqa: F401
@@ -591,7 +592,7 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
             return None
         return _Candidate(*built, correspondence=other, avoided_mm=float(b.length_mm), **judging(built[0]))
 
-    trees = dict(zip(todo, _in_two_processes([lambda k=k: tree_of(k) for k in todo], settings.fork_alternatives)))
+    trees = dict(zip(todo, _in_processes([lambda k=k: tree_of(k) for k in todo], settings.fork_alternatives)))
     own_length_mm = float(np.mean([trees[k].length_mm for k in todo]))
     for k in todo:
         trees[k].score = trees[k].judged(settings, own_length_mm) if judged else np.nan
@@ -610,7 +611,7 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
                                                 settings.unexplained_min_pixels)]
         if tasks:
             say(f"{len(tasks)} hypotheses of a wrong pairing (trees agreeing less than {settings.hypothesis_gate:g})")
-        built = _in_two_processes([lambda k=k, b=b: hypothesis(k, trees[k].tree, b) for k, b in tasks],
+        built = _in_processes([lambda k=k, b=b: hypothesis(k, trees[k].tree, b) for k, b in tasks],
                                   settings.fork_alternatives)
         hypotheses = [h for h in built if h is not None]
         bar = best.score + settings.hypothesis_margin
