@@ -907,6 +907,46 @@ def test_three_views_with_salt_bridge_through_a_hull_without_the_specks():
     assert salted["centerline_mean_mm"] < clean["centerline_mean_mm"] + 0.1
 
 
+def test_pinholes_are_filled_before_the_tree_method_reads_two_views():
+    """Pepper (10 % of every mask's vessel pixels cleared, as `synth --corrupt fn=0.1` does) leaves
+    the Y's tree as the clean one's: a mask with more small holes than pepper_holes_per_px per pixel
+    has its holes of at most pinhole_px pixels filled first (without, measured: centerline 3.59 mm,
+    branch recall 0.5, 10.7 s); the clean Y's masks, with none, are read as they are."""
+    from angiohull.reconstruction.model import MODEL_SETTINGS
+    from angiohull.reconstruction.refine import with_small_holes_filled
+
+    projections = _views()
+    masks = _masks(_y(), projections)
+    rng = np.random.default_rng(7)
+    noisy = [m & ~(rng.random(m.shape) < 0.1) for m in masks]
+    for clean, peppered in zip(masks, noisy):
+        filled = with_small_holes_filled(peppered, MODEL_SETTINGS.pinhole_px, MODEL_SETTINGS.pepper_holes_per_px)
+        assert not np.array_equal(filled, peppered)  # the gate passed
+        # nothing outside the vessel is added (the clean masks' background is one piece); inside, the
+        # holes left are the rare clusters of more than pinhole_px cleared pixels and notches at the edge
+        assert not (filled & ~clean).any() and (filled & clean).sum() > 0.97 * clean.sum()
+    s = tree_scores(reconstruct(projections, noisy, method="tree", centerlines=False).tree, _y()).as_dict()
+    assert s["branch_recall"] == 1.0 and s["centerline_mean_mm"] < 0.3
+
+
+def test_small_holes_are_the_4_connected_background_pieces_up_to_the_size():
+    from angiohull.reconstruction.refine import with_small_holes_filled
+
+    m = np.ones((7, 9), dtype=bool)
+    m[1, 1] = False  # 1 pixel
+    m[3, 2] = m[4, 3] = False  # 2 pixels, diagonal: two 4-connected holes of 1
+    m[1:3, 5:7] = False  # 4 pixels
+    m[6, 4:9] = False  # 5 pixels at the image's edge
+    assert with_small_holes_filled(m, 1).sum() == m.sum() + 3
+    assert with_small_holes_filled(m, 4).sum() == m.sum() + 7 and not with_small_holes_filled(m, 4)[6].all()
+    assert with_small_holes_filled(m, 5).all() and with_small_holes_filled(m, 0).sum() == m.sum()
+    assert with_small_holes_filled(np.ones((3, 3), bool), 2).all()
+    # pepper only: 4 holes of at most 4 pixels (the diagonal pair two of them) in 51 mask pixels, more
+    # than 0.07 per pixel (3.57) but not than 0.08 (4.08)
+    assert m.sum() == 51 and with_small_holes_filled(m, 4, min_holes_per_pixel=0.07).sum() == m.sum() + 7
+    assert with_small_holes_filled(m, 4, min_holes_per_pixel=0.08).sum() == m.sum()
+
+
 def test_small_components_are_the_8_connected_pieces_under_the_size():
     from angiohull.reconstruction.refine import without_small_components
 

@@ -21,7 +21,7 @@ from .cube import MAX_DENSE_RESOLUTION, Lattice
 from .engines import ENGINES, CarveOutcome
 from . import hierarchical  # noqa: F401  (registers the lookup and octree engines)
 from .gpu import CUDA_ENGINES, carve_cuda
-from .refine import REFINED, clean_mask, refine_hull, without_small_components
+from .refine import REFINED, clean_mask, refine_hull, with_small_holes_filled, without_small_components
 from .vessel_tree import TreeBuild, hull_tree
 
 __all__ = [
@@ -355,8 +355,9 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
     if empty and not allow_empty:
         raise ReconstructionError(f"view {empty[0]!r}: the mask holds no piece of {MODEL_SETTINGS.speck_px} pixels "
                                   f"or more (only specks); the tree method needs the vessels")
-    if len(projections) == 2:
-        masks = speckless
+    if len(projections) == 2:  # ... and its pinholes are filled (pepper breaks a skeleton into loops; step 1)
+        masks = [with_small_holes_filled(m, MODEL_SETTINGS.pinhole_px, MODEL_SETTINGS.pepper_holes_per_px)
+                 for m in speckless]
     start = time.perf_counter()
     lattice = Lattice(cube_half_edge_mm(projections) if half_edge_mm is None else half_edge_mm,
                       REFINED.resolution if resolution is None else resolution)
