@@ -348,8 +348,9 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
     timings: dict[str, float] = {}
     # specks (a noisy segmentation's salt): no other view matches them, and the hull they carve slows
     # every bridge search (docs/tree-method.md, step 1). Two views: a mask's small pieces go before
-    # anything reads it. Three or more: the support hull the bridges search is carved without them
-    # (the refined hull that starts the tree removes specks its own way)
+    # anything reads it. Three or more: a salted mask is read without them throughout; otherwise the
+    # support hull the bridges search is carved without them (the refined hull that starts the tree
+    # removes specks its own way)
     speckless = [without_small_components(m, MODEL_SETTINGS.speck_px) for m in masks]
     empty = [names[i] for i, m in enumerate(speckless) if not m.any()]
     if empty and not allow_empty:
@@ -358,6 +359,9 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
     if len(projections) == 2:  # ... and its pinholes are filled (pepper breaks a skeleton into loops; step 1)
         masks = [with_small_holes_filled(m, MODEL_SETTINGS.pinhole_px, MODEL_SETTINGS.pepper_holes_per_px)
                  for m in speckless]
+    else:  # a salted mask (many specks; a clean one's few stay) is read without its specks throughout
+        masks = [without_small_components(m, MODEL_SETTINGS.speck_px, MODEL_SETTINGS.salt_pieces_per_px)
+                 for m in masks]
     start = time.perf_counter()
     lattice = Lattice(cube_half_edge_mm(projections) if half_edge_mm is None else half_edge_mm,
                       REFINED.resolution if resolution is None else resolution)

@@ -166,13 +166,17 @@ def clean_mask(mask: np.ndarray, min_neighbours: int = 2, fill_neighbours: int =
     return out
 
 
-def without_small_components(mask: np.ndarray, min_pixels: int) -> np.ndarray:
+def without_small_components(mask: np.ndarray, min_pixels: int, min_pieces_per_pixel: float = 0.0) -> np.ndarray:
     """A bool mask without its 8-connected pieces of fewer than ``min_pixels`` pixels: specks of a
-    noisy segmentation, which no other view can match, go; a mask with none comes back unchanged.
+    noisy segmentation, which no other view can match, go, where they number more than
+    ``min_pieces_per_pixel`` per mask pixel (salt; a clean mask's few small pieces, a thin vessel's
+    broken ends, stay); otherwise, or with none, the mask comes back unchanged.
 
     >>> m = np.zeros((6, 8), bool); m[1, 1] = m[2, 2] = True; m[4, 1:7] = True
     >>> without_small_components(m, 3).astype(int)[[1, 2, 4]].sum(axis=1)
     array([0, 0, 6])
+    >>> int(without_small_components(m, 3, min_pieces_per_pixel=0.2).sum())  # 1 speck in 8 pixels: kept
+    8
     """
     mask = np.asarray(mask, dtype=bool)
     labels, count = ndi.label(mask, structure=np.ones((3, 3), dtype=bool))
@@ -180,6 +184,8 @@ def without_small_components(mask: np.ndarray, min_pixels: int) -> np.ndarray:
         return mask.copy()
     keep = np.bincount(labels.ravel(), minlength=count + 1) >= min_pixels
     keep[0] = False
+    if count - np.count_nonzero(keep) <= min_pieces_per_pixel * np.count_nonzero(mask):
+        return mask.copy()
     return keep[labels]
 
 

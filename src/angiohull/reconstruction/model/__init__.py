@@ -149,6 +149,7 @@ class ModelSettings:
     match: MatchSettings = field(default_factory=lambda: MATCH_SETTINGS)
     tree: TreeSettings = field(default_factory=lambda: TREE_SETTINGS)
     speck_px: int = 20  # a mask's 8-connected pieces smaller than this are specks: dropped before the carving
+    salt_pieces_per_px: float = 0.005  # 3+ views: a mask with more specks than this per pixel is read without them
     # two views: a mask's holes of at most pinhole_px pixels are filled before anything reads it where they number
     # more than pepper_holes_per_px per mask pixel (pepper noise; a clean mask's few, where vessels cross, stay)
     pinhole_px: int = 9
