@@ -22,7 +22,7 @@ from .engines import ENGINES, CarveOutcome
 from . import hierarchical  # noqa: F401  (registers the lookup and octree engines)
 from .gpu import CUDA_ENGINES, carve_cuda
 from .refine import REFINED, clean_mask, refine_hull, with_small_holes_filled, without_small_components
-from .vessel_tree import TreeBuild, hull_tree
+from .vessel_tree import TreeBuild, checked_occupancy, hull_tree
 
 __all__ = [
     "reconstruct",
@@ -329,6 +329,10 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     )
 
 
+_TREE_METHOD_HINT = (" (the tree method, which needs vessels in the masks and a lattice fine enough for them; "
+                     "method 'hull' carves the visual hull instead)")
+
+
 def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray], names: tuple[str, ...], *,
                       resolution: int | None, threshold_px: float, engine: str, centerlines: bool,
                       half_edge_mm: float | None, device: str, min_views: int | None, preset: str,
@@ -386,6 +390,11 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
                                     engine=engine, device=device, threshold_px=threshold, view_names=names,
                                     survivors_per_view=outcome.survivors_per_view, view_order=order, preset=preset,
                                     timings_s=timings, tree_error="the hull is empty", method="tree")
+    if len(outcome.points_mm) > MODEL_SETTINGS.tree.max_voxels:  # a hull no vessel tree fills: said now, not
+        try:  # after minutes of 2D centerlines and matchings through masks that are not vessel masks
+            checked_occupancy(outcome.points_mm, lattice, MODEL_SETTINGS.tree)
+        except ReconstructionError as exc:
+            raise ReconstructionError(f"{exc}{_TREE_METHOD_HINT}") from None
     initial = None
     if len(projections) >= 3:
         # three views or more: the refined hull is no longer ambiguous, and its skeleton starts the tree
@@ -405,8 +414,7 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
     except ReconstructionError as exc:  # the tree method is the default: say what else there is
         if type(exc) is not ReconstructionError:
             raise
-        raise ReconstructionError(f"{exc} (the tree method, which needs vessels in the masks and a lattice fine "
-                                  f"enough for them; method 'hull' carves the visual hull instead)") from None
+        raise ReconstructionError(f"{exc}{_TREE_METHOD_HINT}") from None
     timings.update({f"tree_{k}": v for k, v in build.timings_s.items()})
     timings["reconstruction"] = sum(timings.values())
     timings["total"] = timings["reconstruction"]

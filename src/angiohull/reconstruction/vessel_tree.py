@@ -248,7 +248,7 @@ from ..tree.voxels import coordinates, dilated, distance_to, neighbour_edges
 from .cube import Lattice
 from .refine import cell_reach_px, projected_with_scale
 
-__all__ = ["TreeSettings", "TREE_SETTINGS", "TreeBuild", "SupportBridge", "hull_tree", "refit_tree"]
+__all__ = ["TreeSettings", "TREE_SETTINGS", "TreeBuild", "SupportBridge", "checked_occupancy", "hull_tree", "refit_tree"]
 
 
 @dataclass(frozen=True)
@@ -1305,6 +1305,19 @@ def _occupancy(points_mm: np.ndarray, lattice: Lattice, cell_mm: float) -> tuple
     return volume, low * spacing + 0.5 * (factor - 1) * h - lattice.half_edge_mm, spacing
 
 
+def checked_occupancy(points_mm: np.ndarray, lattice: Lattice, settings: TreeSettings = TREE_SETTINGS
+                      ) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`_occupancy` of ``points_mm`` in cells of at most ``settings.max_cell_mm``; raises
+    ReconstructionError where they fill more than ``settings.max_voxels`` cells (no vessel tree does:
+    a mask that is not a vessel mask, or views that do not agree at all)."""
+    volume, origin, spacing = _occupancy(np.asarray(points_mm, dtype=np.float64), lattice, settings.max_cell_mm)
+    occupied = int(np.count_nonzero(volume))
+    if occupied > settings.max_voxels:
+        raise ReconstructionError(f"the hull fills {occupied:,} cells of {spacing:.2f} mm, more than a vessel tree's "
+                                  f"{settings.max_voxels:,}; are the masks vessel masks?")
+    return volume, origin, spacing
+
+
 class SupportBridge:
     """Shortest paths through a support hull, for :func:`~angiohull.tree.skeleton.tree_from_skeleton`:
     through its cells, or, where they hold no path (the carving, too, has gaps of a cell or two in
@@ -1474,11 +1487,7 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     start = time.perf_counter()
     if len(points_mm) < 2:
         raise ReconstructionError(f"the hull has {len(points_mm)} point(s); a vessel tree needs a skeleton of two or more")
-    volume, origin, spacing = _occupancy(np.asarray(points_mm, dtype=np.float64), lattice, settings.max_cell_mm)
-    occupied = int(np.count_nonzero(volume))
-    if occupied > settings.max_voxels:
-        raise ReconstructionError(f"the hull fills {occupied:,} cells of {spacing:.2f} mm, more than a vessel tree's "
-                                  f"{settings.max_voxels:,}; are the masks vessel masks?")
+    volume, origin, spacing = checked_occupancy(points_mm, lattice, settings)
     paths, dbf, depth = _skeleton_input(volume, int(np.floor(settings.bridge_mm / spacing)))
     skeleton, _ = teasar_skeleton(paths, dbf=dbf)
     # the skeleton's voxels among the path volume's (both in C order): their distance to an empty cell
