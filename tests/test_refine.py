@@ -191,12 +191,20 @@ def test_tube_axis_of_a_straight_tube_lies_on_its_axis_with_its_radius():
 
 
 @pytest.mark.parametrize("seed", range(8))
-def test_refined_points_do_not_depend_on_how_the_images_are_stored(seed):
+def test_refined_points_do_not_depend_on_how_the_images_are_stored(seed, monkeypatch):
     """Each view's image flipped and/or transposed, with the equivalent matrix: the same view, so
-    the same points (the 2D steps run in an orientation the geometry sets; ties go by lattice order)."""
+    the same points (the 2D steps run in an orientation the geometry sets; ties go by lattice order).
+    The random cases' masks are blobs of 120-160 pieces, most under 20 pixels: salt to the refined
+    preset's gate, which would leave some hulls empty; the gate (a count of 8-connected pieces, the
+    same however the image is stored) is turned off here."""
+    from dataclasses import replace
+
     from _cases import random_case
 
+    import angiohull.reconstruction as reconstruction
     from angiohull.geometry import ImageStorage
+
+    monkeypatch.setattr(reconstruction, "REFINED", replace(REFINED, salt_pieces_per_px=float("inf")))
 
     rng = np.random.default_rng(seed)
     projections, masks = random_case(seed, shape=(120, 100))

@@ -253,7 +253,8 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     if resolution is None:
         resolution = DEFAULT_RESOLUTION if preset == "paper" else REFINED.resolution
     if preset == "refined":
-        checked_masks = [clean_mask(without_small_components(m, REFINED.speck_px, REFINED.salt_pieces_per_px),
+        checked_masks = [clean_mask(without_small_components(m, REFINED.speck_px, REFINED.salt_pieces_per_px,
+                                                             REFINED.salt_min_pieces),
                                     REFINED.min_neighbours, REFINED.fill_neighbours) for m in checked_masks]
         empty = [names[i] for i, m in enumerate(checked_masks) if not m.any()]
         if empty:
@@ -362,11 +363,11 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
         raise ReconstructionError(f"view {empty[0]!r}: the mask holds no piece of {MODEL_SETTINGS.speck_px} pixels "
                                   f"or more (only specks); the tree method needs the vessels")
     if len(projections) == 2:  # ... and its pinholes are filled (pepper breaks a skeleton into loops; step 1)
-        masks = [with_small_holes_filled(m, MODEL_SETTINGS.pinhole_px, MODEL_SETTINGS.pepper_holes_per_px)
-                 for m in speckless]
+        masks = [with_small_holes_filled(m, MODEL_SETTINGS.pinhole_px, MODEL_SETTINGS.pepper_holes_per_px,
+                                         MODEL_SETTINGS.pepper_min_holes) for m in speckless]
     else:  # a salted mask (many specks; a clean one's few stay) is read without its specks throughout
-        masks = [without_small_components(m, MODEL_SETTINGS.speck_px, MODEL_SETTINGS.salt_pieces_per_px)
-                 for m in masks]
+        masks = [without_small_components(m, MODEL_SETTINGS.speck_px, MODEL_SETTINGS.salt_pieces_per_px,
+                                          MODEL_SETTINGS.salt_min_pieces) for m in masks]
     start = time.perf_counter()
     lattice = Lattice(cube_half_edge_mm(projections) if half_edge_mm is None else half_edge_mm,
                       REFINED.resolution if resolution is None else resolution)

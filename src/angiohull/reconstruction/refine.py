@@ -96,10 +96,11 @@ class RefineSettings:
     """Parameters of the ``refined`` preset."""
 
     resolution: int = options.REFINED_RESOLUTION  # lattice points per axis (finer than the paper's 100: less thickening)
-    # a salted mask (more 8-connected pieces under speck_px pixels than salt_pieces_per_px per mask pixel) loses
-    # them first; a clean mask's few small pieces stay (the tree method's gate, docs/tree-method.md)
+    # a salted mask (more 8-connected pieces under speck_px pixels than salt_pieces_per_px per mask pixel, and at
+    # least salt_min_pieces) loses them first; a clean mask's few small pieces stay (the tree method's gate)
     speck_px: int = 20
     salt_pieces_per_px: float = 0.005
+    salt_min_pieces: int = 10
     min_neighbours: int = 2  # clean_mask: a vessel pixel needs this many vessel neighbours (of 8)
     fill_neighbours: int = 5  # clean_mask: a background pixel with this many vessel neighbours is filled
     component_fraction: float = 0.05  # drop connected parts of the hull smaller than this fraction
@@ -170,11 +171,14 @@ def clean_mask(mask: np.ndarray, min_neighbours: int = 2, fill_neighbours: int =
     return out
 
 
-def without_small_components(mask: np.ndarray, min_pixels: int, min_pieces_per_pixel: float = 0.0) -> np.ndarray:
+def without_small_components(mask: np.ndarray, min_pixels: int, min_pieces_per_pixel: float = 0.0,
+                             min_pieces: int = 0) -> np.ndarray:
     """A bool mask without its 8-connected pieces of fewer than ``min_pixels`` pixels: specks of a
-    noisy segmentation, which no other view can match, go, where they number more than
-    ``min_pieces_per_pixel`` per mask pixel (salt; a clean mask's few small pieces, a thin vessel's
-    broken ends, stay); otherwise, or with none, the mask comes back unchanged.
+    noisy segmentation, which no other view can match, go. With ``min_pieces_per_pixel`` or
+    ``min_pieces`` (a gate), only where they number more than the one per mask pixel and at least
+    the other, beside a piece that stays (salt on vessels; a clean mask's few small pieces, a thin
+    vessel's broken ends, stay, and so does a mask of nothing but small pieces); otherwise, or with
+    none, the mask comes back unchanged.
 
     >>> m = np.zeros((6, 8), bool); m[1, 1] = m[2, 2] = True; m[4, 1:7] = True
     >>> without_small_components(m, 3).astype(int)[[1, 2, 4]].sum(axis=1)
@@ -188,17 +192,20 @@ def without_small_components(mask: np.ndarray, min_pixels: int, min_pieces_per_p
         return mask.copy()
     keep = np.bincount(labels.ravel(), minlength=count + 1) >= min_pixels
     keep[0] = False
-    if count - np.count_nonzero(keep) <= min_pieces_per_pixel * np.count_nonzero(mask):
-        return mask.copy()
+    specks = count - np.count_nonzero(keep)
+    if min_pieces_per_pixel > 0 or min_pieces > 0:
+        if specks <= min_pieces_per_pixel * np.count_nonzero(mask) or specks < min_pieces or specks == count:
+            return mask.copy()
     return keep[labels]
 
 
-def with_small_holes_filled(mask: np.ndarray, max_pixels: int, min_holes_per_pixel: float = 0.0) -> np.ndarray:
+def with_small_holes_filled(mask: np.ndarray, max_pixels: int, min_holes_per_pixel: float = 0.0,
+                            min_holes: int = 0) -> np.ndarray:
     """A bool mask with its holes of at most ``max_pixels`` pixels filled: the 4-connected pieces of
     background that small (a piece at the image's edge counts too), where they number more than
-    ``min_holes_per_pixel`` per mask pixel (pepper, a noisy segmentation's pinholes, which break a
-    skeleton into loops; a clean mask's few small holes, where vessels cross, stay); otherwise, or
-    with none, the mask comes back unchanged.
+    ``min_holes_per_pixel`` per mask pixel and at least ``min_holes`` (pepper, a noisy
+    segmentation's pinholes, which break a skeleton into loops; a clean mask's few small holes,
+    where vessels cross, stay); otherwise, or with none, the mask comes back unchanged.
 
     >>> m = np.ones((5, 7), bool); m[2, 1] = False; m[1:4, 3:5] = False; m[:, 6] = False
     >>> int((~with_small_holes_filled(m, 4)).sum()), int((~with_small_holes_filled(m, 5)).sum())
@@ -212,7 +219,8 @@ def with_small_holes_filled(mask: np.ndarray, max_pixels: int, min_holes_per_pix
         return mask.copy()
     fill = np.bincount(labels.ravel(), minlength=count + 1) <= max_pixels
     fill[0] = False
-    if np.count_nonzero(fill) <= min_holes_per_pixel * np.count_nonzero(mask):
+    holes = np.count_nonzero(fill)
+    if holes <= min_holes_per_pixel * np.count_nonzero(mask) or holes < min_holes:
         return mask.copy()
     return mask | fill[labels]
 

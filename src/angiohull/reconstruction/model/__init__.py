@@ -149,11 +149,14 @@ class ModelSettings:
     match: MatchSettings = field(default_factory=lambda: MATCH_SETTINGS)
     tree: TreeSettings = field(default_factory=lambda: TREE_SETTINGS)
     speck_px: int = 20  # a mask's 8-connected pieces smaller than this are specks: dropped before the carving
-    salt_pieces_per_px: float = 0.005  # 3+ views: a mask with more specks than this per pixel is read without them
+    salt_pieces_per_px: float = 0.005  # 3+ views: a mask with more specks than this per pixel ...
+    salt_min_pieces: int = 10  # ... and at least this many is read without them (salt; a clean mask's few stay)
     # two views: a mask's holes of at most pinhole_px pixels are filled before anything reads it where they number
-    # more than pepper_holes_per_px per mask pixel (pepper noise; a clean mask's few, where vessels cross, stay)
+    # more than pepper_holes_per_px per mask pixel and at least pepper_min_holes (pepper noise; a clean mask's few,
+    # where vessels cross, stay)
     pinhole_px: int = 9
     pepper_holes_per_px: float = 0.005
+    pepper_min_holes: int = 10
     max_segment_mm: float = 2.0  # matched neighbours farther apart than this are not joined by a tube
     lumen_margin_steps: float = 0.5  # lumen points: lattice points within this many lattice steps of the tubes
     spike_window_mm: float = 3.0  # a radius above spike_ratio times the median over this much arc either side ...
