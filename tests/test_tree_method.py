@@ -969,9 +969,32 @@ def test_small_components_are_the_8_connected_pieces_under_the_size():
     np.testing.assert_array_equal(without_small_components(m, 3).sum(), 17)
     assert without_small_components(m, 1).sum() == m.sum() and not without_small_components(m, 11).any()
     assert not without_small_components(np.zeros((3, 3), bool), 2).any()
-    # salt only: 3 pieces under 5 pixels in 18 mask pixels, more than 0.16 per pixel (2.88), not 0.17 (3.06)
-    assert m.sum() == 18 and without_small_components(m, 5, min_pieces_per_pixel=0.16).sum() == 10
-    assert without_small_components(m, 5, min_pieces_per_pixel=0.17).sum() == 18
+
+
+def test_salt_is_many_specks_beside_a_vessel_and_few_pinholes():
+    """is_salted: 10 % salt on the Y's masks is salt; the clean masks, a mask of specks alone, and
+    pepper that breaks a vessel into fragments (they leave pinholes with them) are not."""
+    from angiohull.reconstruction.model import MODEL_SETTINGS as S
+    from angiohull.reconstruction.refine import is_salted
+
+    mask = _masks(_y(), _views())[0]
+    rng = np.random.default_rng(3)
+
+    def salted(m):
+        return is_salted(m, S.speck_px, S.salt_pieces_per_px, S.salt_min_pieces, S.pinhole_px)
+
+    assert salted(mask | (rng.random(mask.shape) < 0.1)) and not salted(mask)
+    assert not salted(rng.random(mask.shape) < 0.01)  # specks alone: nothing else would stay
+    fragments = mask & (rng.random(mask.shape) < 0.4)  # 60 % pepper: fragments, and pinholes among them
+    labels, count = ndi.label(fragments, structure=np.ones((3, 3), dtype=bool))
+    assert (np.bincount(labels.ravel())[1:] < S.speck_px).sum() > S.salt_min_pieces and not salted(fragments)
+    line = np.zeros((64, 64), bool)
+    line[32] = True
+    dots = line.copy()
+    dots[0, ::8] = True  # 8 specks off the line: fewer than salt_min_pieces
+    dots_many = line.copy()
+    dots_many[::4, ::4] = True  # 15 x 16 - 16 = 240 specks
+    assert not salted(dots) and salted(dots_many)
 
 
 def test_masks_that_are_not_vessel_masks_fail_at_the_hull_not_minutes_later():

@@ -216,7 +216,9 @@ def tree_from_skeleton(skeleton: np.ndarray, radius_mm: np.ndarray, *, origin_mm
     count, part = connected_components(sparse.coo_matrix((np.ones(len(heads)), (heads, tails)), shape=(n, n)),
                                        directed=False)
     info.parts = int(count)
-    part_length = np.round(np.bincount(part[heads], weights=edge_length, minlength=count), _TIE_DECIMALS)
+    # (float even without edges: NumPy's bincount of nothing is int64, weights or not)
+    part_length = np.round(np.bincount(part[heads], weights=edge_length, minlength=count).astype(np.float64),
+                           _TIE_DECIMALS)
     part_length += 1e-9 * np.bincount(part, minlength=count)  # single voxels: order by size
     order = np.argsort(-part_length, kind="stable")
     alive = part == order[0]
