@@ -206,7 +206,8 @@ def is_salted(mask: np.ndarray, speck_px: int, specks_per_pixel: float, min_spec
     return specks >= _SPECKS_PER_PINHOLE * pinholes
 
 
-_SPECKS_PER_PINHOLE = 30  # is_salted: salt leaves 200-500 specks per pinhole, pepper fragments 2-28
+_SPECKS_PER_PINHOLE = 30  # is_salted: salt leaves 200-500 specks per pinhole, heavy pepper's fragments 2-30
+
 
 def with_small_holes_filled(mask: np.ndarray, max_pixels: int, min_holes_per_pixel: float = 0.0,
                             min_holes: int = 0) -> np.ndarray:

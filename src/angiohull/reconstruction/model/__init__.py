@@ -620,7 +620,7 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         if tasks:
             say(f"{len(tasks)} hypotheses of a wrong pairing (trees agreeing less than {settings.hypothesis_gate:g})")
         built = _in_processes([lambda k=k, b=b: hypothesis(k, trees[k].tree, b) for k, b in tasks],
-                                  settings.fork_alternatives)
+                              settings.fork_alternatives)
         hypotheses = [h for h in built if h is not None]
         bar = best.score + settings.hypothesis_margin
         for h in hypotheses:
