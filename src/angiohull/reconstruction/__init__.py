@@ -253,7 +253,10 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     if resolution is None:
         resolution = DEFAULT_RESOLUTION if preset == "paper" else REFINED.resolution
     if preset == "refined":
-        checked_masks = [clean_mask(m, REFINED.min_neighbours, REFINED.fill_neighbours) for m in checked_masks]
+        checked_masks = [clean_mask(without_small_components(m, REFINED.speck_px)
+                                    if is_salted(m, REFINED.speck_px, REFINED.salt_pieces_per_px,
+                                                 REFINED.salt_min_pieces, REFINED.pinhole_px) else m,
+                                    REFINED.min_neighbours, REFINED.fill_neighbours) for m in checked_masks]
         empty = [names[i] for i, m in enumerate(checked_masks) if not m.any()]
         if empty:
             raise ReconstructionError(f"view {empty[0]!r}: the refined preset's speck removal leaves the mask empty "

@@ -96,6 +96,12 @@ class RefineSettings:
     """Parameters of the ``refined`` preset."""
 
     resolution: int = options.REFINED_RESOLUTION  # lattice points per axis (finer than the paper's 100: less thickening)
+    # a salted mask (is_salted: many specks beside the vessels, few pinholes) loses its 8-connected pieces under
+    # speck_px pixels before clean_mask; a clean mask's few small pieces and heavy pepper's fragments stay
+    speck_px: int = 20
+    salt_pieces_per_px: float = 0.005
+    salt_min_pieces: int = 10
+    pinhole_px: int = 9
     min_neighbours: int = 2  # clean_mask: a vessel pixel needs this many vessel neighbours (of 8)
     fill_neighbours: int = 5  # clean_mask: a background pixel with this many vessel neighbours is filled
     component_fraction: float = 0.05  # drop connected parts of the hull smaller than this fraction
