@@ -172,6 +172,13 @@ def clean_mask(mask: np.ndarray, min_neighbours: int = 2, fill_neighbours: int =
     return out
 
 
+def _pieces(image: np.ndarray, eight: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The connected pieces of a bool image (8-connected, or 4-connected): their labels (0 off the
+    pieces) and, per label, its size in pixels (the pixels off the pieces at 0)."""
+    labels, count = ndi.label(image, structure=np.ones((3, 3), dtype=bool) if eight else None)
+    return labels, np.bincount(labels.ravel(), minlength=count + 1)
+
+
 def without_small_components(mask: np.ndarray, min_pixels: int) -> np.ndarray:
     """A bool mask without its 8-connected pieces of fewer than ``min_pixels`` pixels: specks of a
     noisy segmentation, which no other view can match, go; a mask with none comes back unchanged.
@@ -181,10 +188,10 @@ def without_small_components(mask: np.ndarray, min_pixels: int) -> np.ndarray:
     array([0, 0, 6])
     """
     mask = np.asarray(mask, dtype=bool)
-    labels, count = ndi.label(mask, structure=np.ones((3, 3), dtype=bool))
-    if count == 0:
+    labels, sizes = _pieces(mask, eight=True)
+    if len(sizes) == 1:
         return mask.copy()
-    keep = np.bincount(labels.ravel(), minlength=count + 1) >= min_pixels
+    keep = sizes >= min_pixels
     keep[0] = False
     return keep[labels]
 
@@ -203,12 +210,11 @@ def is_salted(mask: np.ndarray, speck_px: int, specks_per_pixel: float, min_spec
     (True, False)
     """
     mask = np.asarray(mask, dtype=bool)
-    labels, count = ndi.label(mask, structure=np.ones((3, 3), dtype=bool))
-    specks = int(np.count_nonzero(np.bincount(labels.ravel(), minlength=count + 1)[1:] < speck_px))
-    if specks == count or specks < min_specks or specks <= specks_per_pixel * np.count_nonzero(mask):
+    sizes = _pieces(mask, eight=True)[1][1:]
+    specks = int(np.count_nonzero(sizes < speck_px))
+    if specks == len(sizes) or specks < min_specks or specks <= specks_per_pixel * np.count_nonzero(mask):
         return False
-    holes, count = ndi.label(~mask)
-    pinholes = int(np.count_nonzero(np.bincount(holes.ravel(), minlength=count + 1)[1:] <= pinhole_px))
+    pinholes = int(np.count_nonzero(_pieces(~mask, eight=False)[1][1:] <= pinhole_px))
     return specks >= _SPECKS_PER_PINHOLE * pinholes
 
 
@@ -230,10 +236,10 @@ def with_small_holes_filled(mask: np.ndarray, max_pixels: int, min_holes_per_pix
     12
     """
     mask = np.asarray(mask, dtype=bool)
-    labels, count = ndi.label(~mask)
-    if count == 0:
+    labels, sizes = _pieces(~mask, eight=False)
+    if len(sizes) == 1:
         return mask.copy()
-    fill = np.bincount(labels.ravel(), minlength=count + 1) <= max_pixels
+    fill = sizes <= max_pixels
     fill[0] = False
     holes = np.count_nonzero(fill)
     if holes <= min_holes_per_pixel * np.count_nonzero(mask) or holes < min_holes:
