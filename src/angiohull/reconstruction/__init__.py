@@ -21,7 +21,8 @@ from .cube import MAX_DENSE_RESOLUTION, Lattice
 from .engines import ENGINES, CarveOutcome
 from . import hierarchical  # noqa: F401  (registers the lookup and octree engines)
 from .gpu import CUDA_ENGINES, carve_cuda
-from .refine import REFINED, clean_mask, is_salted, refine_hull, with_small_holes_filled, without_small_components
+from .refine import (REFINED, clean_mask, refine_hull, with_small_holes_filled, without_salt,
+                     without_small_components)
 from .vessel_tree import TreeBuild, checked_occupancy, hull_tree
 
 __all__ = [
@@ -253,9 +254,8 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     if resolution is None:
         resolution = DEFAULT_RESOLUTION if preset == "paper" else REFINED.resolution
     if preset == "refined":
-        checked_masks = [clean_mask(without_small_components(m, REFINED.speck_px)
-                                    if is_salted(m, REFINED.speck_px, REFINED.salt_pieces_per_px,
-                                                 REFINED.salt_min_pieces, REFINED.pinhole_px) else m,
+        checked_masks = [clean_mask(without_salt(m, REFINED.speck_px, REFINED.salt_pieces_per_px,
+                                                 REFINED.salt_min_pieces, REFINED.pinhole_px),
                                     REFINED.min_neighbours, REFINED.fill_neighbours) for m in checked_masks]
         empty = [names[i] for i, m in enumerate(checked_masks) if not m.any()]
         if empty:
@@ -367,9 +367,8 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
         masks = [with_small_holes_filled(m, MODEL_SETTINGS.pinhole_px, MODEL_SETTINGS.pepper_holes_per_px,
                                          MODEL_SETTINGS.pepper_min_holes) for m in speckless]
     else:  # a salted mask (many specks, few pinholes: docs/tree-method.md) is read without its specks throughout
-        masks = [bare if is_salted(m, MODEL_SETTINGS.speck_px, MODEL_SETTINGS.salt_pieces_per_px,
-                                   MODEL_SETTINGS.salt_min_pieces, MODEL_SETTINGS.pinhole_px) else m
-                 for m, bare in zip(masks, speckless)]
+        masks = [without_salt(m, MODEL_SETTINGS.speck_px, MODEL_SETTINGS.salt_pieces_per_px,
+                              MODEL_SETTINGS.salt_min_pieces, MODEL_SETTINGS.pinhole_px) for m in masks]
     start = time.perf_counter()
     lattice = Lattice(cube_half_edge_mm(projections) if half_edge_mm is None else half_edge_mm,
                       REFINED.resolution if resolution is None else resolution)

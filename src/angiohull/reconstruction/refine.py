@@ -210,12 +210,30 @@ def is_salted(mask: np.ndarray, speck_px: int, specks_per_pixel: float, min_spec
     (True, False)
     """
     mask = np.asarray(mask, dtype=bool)
-    sizes = _pieces(mask, eight=True)[1][1:]
-    specks = int(np.count_nonzero(sizes < speck_px))
-    if specks == len(sizes) or specks < min_specks or specks <= specks_per_pixel * np.count_nonzero(mask):
+    return _salted(mask, _pieces(mask, eight=True)[1], speck_px, specks_per_pixel, min_specks, pinhole_px)
+
+
+def _salted(mask: np.ndarray, sizes: np.ndarray, speck_px: int, specks_per_pixel: float, min_specks: int,
+            pinhole_px: int) -> bool:
+    """:func:`is_salted` of ``mask`` whose 8-connected pieces have ``sizes`` (:func:`_pieces`)."""
+    specks = int(np.count_nonzero(sizes[1:] < speck_px))
+    if specks == len(sizes) - 1 or specks < min_specks or specks <= specks_per_pixel * np.count_nonzero(mask):
         return False
     pinholes = int(np.count_nonzero(_pieces(~mask, eight=False)[1][1:] <= pinhole_px))
     return specks >= _SPECKS_PER_PINHOLE * pinholes
+
+
+def without_salt(mask: np.ndarray, speck_px: int, specks_per_pixel: float, min_specks: int,
+                 pinhole_px: int) -> np.ndarray:
+    """A salted mask (:func:`is_salted`) without its specks (:func:`without_small_components`); any
+    other mask unchanged. Its pieces are labelled once for both."""
+    mask = np.asarray(mask, dtype=bool)
+    labels, sizes = _pieces(mask, eight=True)
+    if not _salted(mask, sizes, speck_px, specks_per_pixel, min_specks, pinhole_px):
+        return mask.copy()
+    keep = sizes >= speck_px
+    keep[0] = False
+    return keep[labels]
 
 
 _SPECKS_PER_PINHOLE = 30  # is_salted: salt leaves 200-500 specks per pinhole, heavy pepper's fragments 2-30
