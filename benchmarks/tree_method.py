@@ -21,10 +21,15 @@ preset, K = 256) and ``tree`` (K = 256): Dice3D, Chamfer, the
 tree scores of :func:`angiohull.metrics.tree.tree_scores` (centerline mean distance, Ot(1 mm)
 both ways, radius MAE, branch recall and precision) and the reconstruction time; for the tree
 method on generated trees also where its Dice3D goes (:func:`_dice_split`: far phantom and missing
-voxels, and what the true tree itself scores through the same lumen points).
+voxels, and what the true tree itself scores through the same lumen points). The time section
+times two 512 x 512 views in one process: three trees, medians of ``--repeats`` runs, stage by
+stage; then one run of each of the first ``--timing-trees`` trees of each kind, for how the time
+spreads over trees and how much of it the hypotheses of a wrong pairing take.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/tree_method.py [--trees 30] [--workers 2] \\
         [--output docs/results/tree-method.md]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/tree_method.py --timing-only [--timing-trees 10] \\
+        [--output docs/results/tree-method-timing.md]
 """
 
 from __future__ import annotations
@@ -263,6 +268,50 @@ def _timing(repeats: int) -> list[dict]:
     return out
 
 
+def _timing_spread(trees: int) -> list[dict]:
+    """One timed run of the tree method (after a first run that imports what it uses) on each of the
+    first ``trees`` generated trees of each kind in the two clinical views (exact masks), in this
+    process: how the time spreads over trees, and how much of it the hypotheses of a wrong pairing
+    take (a tree whose own trees agree less with the masks builds three or six more trees)."""
+    from angiohull.reconstruction import reconstruct
+
+    cases = []
+    for kind in ("rca", "left"):
+        for index in range(trees):
+            seed, case = _case(kind, index, "2 clinical views, exact masks")
+            cases.append((kind, seed, [v.projection for v in case.views], [v.mask for v in case.views]))
+    if cases:
+        reconstruct(cases[0][2], cases[0][3], method="tree", centerlines=False)
+    out = []
+    for kind, seed, projections, masks in cases:
+        start = time.perf_counter()
+        result = reconstruct(projections, masks, method="tree", centerlines=False)
+        out.append({"kind": kind, "seed": seed, "total_s": time.perf_counter() - start,
+                    "hypotheses": len(result.model_build.hypotheses),
+                    "hypotheses_s": result.timings_s.get("tree_hypotheses", 0.0)})
+    return out
+
+
+def _spread_lines(spread: list[dict], target_s: float = 2.0) -> list[str]:
+    """The time section's spread over trees: quantiles, the share within ``target_s``, and the
+    same by the number of hypotheses a tree built."""
+    if not spread:
+        return []
+    totals = np.array([t["total_s"] for t in spread])
+    lines = [f"One run per tree of the first {len(spread) // 2} trees of each kind (seeds 7000 and 8000 on), two "
+             "clinical views, exact masks, in the same process after the cases above; seconds.", "",
+             f"| trees | median | 75th percentile | 90th percentile | largest | within {target_s:g} s |",
+             "|---|---|---|---|---|---|"]
+    groups = [("all", totals)] + [(f"building {h} hypotheses", np.array([t["total_s"] for t in spread
+                                                                         if t["hypotheses"] == h]))
+                                  for h in sorted({t["hypotheses"] for t in spread})]
+    for label, values in groups:
+        lines.append(f"| {label} ({len(values)}) | {np.median(values):.2f} | {np.percentile(values, 75):.2f} | "
+                     f"{np.percentile(values, 90):.2f} | {values.max():.2f} | {np.mean(values <= target_s):.0%} |")
+    share = sum(t["hypotheses_s"] for t in spread) / max(float(totals.sum()), 1e-9)
+    return lines + ["", f"The hypotheses took {share:.0%} of the time over these trees.", ""]
+
+
 def _rounded(value, digits: int = 5):
     """Floats to ``digits`` decimals, so that the raw rows stay small enough to commit."""
     if isinstance(value, float):
@@ -293,6 +342,9 @@ def main() -> None:
     parser.add_argument("--no-shared", action="store_true", help="skip the XCAT vessel and the authors' studies")
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per case of the time section (default 5)")
     parser.add_argument("--timing-only", action="store_true", help="only the time section (no pool, no scores)")
+    parser.add_argument("--timing-trees", type=int, default=10, metavar="N",
+                        help="the time section's spread: one run of each of the first N trees of each kind (default "
+                             "10; 0 leaves it out)")
     parser.add_argument("--setup", action="append", choices=list(SETUPS), default=None,
                         help="only this generated setup (repeatable): its section alone, without the authors' studies, "
                              "the XCAT vessel and the time section")
@@ -304,6 +356,8 @@ def main() -> None:
     if args.first_tree < 0 or args.trees < 0 or args.first_tree + args.trees > 1000:
         parser.error("--trees and --first-tree count from 0, and together stay within 1000 (the seeds of a kind's "
                      "trees are 1000 apart)")
+    if not 0 <= args.timing_trees <= 1000:
+        parser.error(f"--timing-trees counts trees of each kind, 0 to 1000, got {args.timing_trees}")
     if args.setup is not None and args.timing_only:
         parser.error("--setup and --timing-only exclude each other (a setup's section has no time section)")
     setups = list(SETUPS) if args.setup is None else args.setup
@@ -331,11 +385,14 @@ def main() -> None:
     rows = rows if rows else []
     load = os.getloadavg()[0]  # what else ran on the machine as the time section began
     timing = _timing(args.repeats) if not restricted else []
+    spread = _timing_spread(args.timing_trees) if not restricted else []
     elapsed = time.perf_counter() - start
     command = "--timing-only" if args.timing_only else f"--trees {args.trees} --workers {args.workers}"
     command += f" --first-tree {args.first_tree}" if args.first_tree and not args.timing_only else ""
     command += "".join(f' --setup "{setup}"' for setup in args.setup or ())
     command += f" --cube-scale {args.cube_scale:g}" if args.cube_scale != 1.0 else ""
+    command += f" --repeats {args.repeats}" if args.repeats != 5 and not restricted else ""
+    command += f" --timing-trees {args.timing_trees}" if args.timing_trees != 10 and not restricted else ""
     lines = ["# Results: the tree method against the visual hull", "",
              f"Produced by `OPENBLAS_NUM_THREADS=1 python benchmarks/tree_method.py {command}` on {datetime.date.today()}, commit {commit}, {platform.machine()} with "
              f"{os.cpu_count()} cores, Python {platform.python_version()} ({library_versions()}), in {elapsed:.0f} s. The same "
@@ -404,6 +461,7 @@ def main() -> None:
                      + " | ".join(f"{t['stages_s'][k]:.2f}" for k in stage_names) + " |")
     if timing:
         lines.append("")
+    lines += _spread_lines(spread)
     failures = [f"{r['setup']} {r['kind']} {r['seed']} {r['method']}: {r['error']}" for r in rows if "error" in r]
     failures += [f"authors' {r['study']} ({r['reading']}) {r['method']}: {r['error']}" for r in peer_rows if "error" in r]
     failures += [f"XCAT views {r['views']} {r['method']} ({r['preset']}): {r.get('error') or r['tree_error']}"
@@ -414,7 +472,7 @@ def main() -> None:
     print(text)
     if args.output is not None:
         args.output.write_text(text + "\n", encoding="utf-8")
-        raw = {"generated": rows, "authors": peer_rows, "xcat": xcat_rows, "timing": timing}
+        raw = {"generated": rows, "authors": peer_rows, "xcat": xcat_rows, "timing": timing, "timing_spread": spread}
         args.output.with_suffix(".json").write_text(json.dumps(_rounded(raw), separators=(",", ":"), default=float) + "\n",
                                                     encoding="utf-8")
 
