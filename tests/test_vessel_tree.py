@@ -192,3 +192,25 @@ def test_the_quadratic_smoothing_keeps_a_bend_whose_gaussian_cuts_it_and_smooths
     m = 7
     factor = 3 * (3 * m * m + 3 * m - 1) / ((2 * m + 3) * (2 * m + 1) * (2 * m - 1))
     assert np.var(quadratic_smoothed(noisy, 15)[m:-m]) == pytest.approx(factor, rel=0.05)
+
+
+def test_the_quadratic_smoothing_is_each_windows_least_squares_parabola_ends_included():
+    """Against a slow reference: for each point, numpy's polyfit of a parabola through the window
+    centred on it (within half a window of an end, the first or last window), evaluated there."""
+    from angiohull.reconstruction.vessel_tree import quadratic_smoothed
+
+    rng = np.random.default_rng(11)
+    for n, window in ((5, 5), (9, 3), (40, 15), (41, 21), (12, 11)):
+        points = rng.normal(size=(n, 3)).cumsum(axis=0)
+        half = window // 2
+        expected = np.empty_like(points)
+        for i in range(n):
+            first = min(max(i - half, 0), n - window)
+            x = np.arange(first, first + window, dtype=float)
+            for k in range(3):
+                expected[i, k] = np.polyval(np.polyfit(x - i, points[first:first + window, k], 2), 0.0)
+        np.testing.assert_allclose(quadratic_smoothed(points, window), expected, atol=1e-10)
+    assert quadratic_smoothed(np.arange(7.0), 7).shape == (7,)  # any trailing shape, a plain series too
+    for window in (4, 1, 9):  # even, too short, longer than the 7 points
+        with pytest.raises(ValueError, match="window"):
+            quadratic_smoothed(np.zeros((7, 3)), window)
