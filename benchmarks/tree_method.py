@@ -269,10 +269,11 @@ def _timing(repeats: int) -> list[dict]:
 
 
 def _timing_spread(trees: int) -> list[dict]:
-    """One timed run of the tree method (after a first run that imports what it uses) on each of the
-    first ``trees`` generated trees of each kind in the two clinical views (exact masks), in this
-    process: how the time spreads over trees, and how much of it the hypotheses of a wrong pairing
-    take (a tree whose own trees agree less with the masks builds three or six more trees)."""
+    """One timed run of the tree method on each of the first ``trees`` generated trees of each kind
+    in the two clinical views (exact masks), in this process after :func:`_timing` (whose first,
+    untimed runs imported what the method uses): how the time spreads over trees, and how much of
+    it the hypotheses of a wrong pairing take (a tree whose own trees agree less with the masks
+    builds three or six more trees)."""
     from angiohull.reconstruction import reconstruct
 
     cases = []
@@ -280,8 +281,6 @@ def _timing_spread(trees: int) -> list[dict]:
         for index in range(trees):
             seed, case = _case(kind, index, "2 clinical views, exact masks")
             cases.append((kind, seed, [v.projection for v in case.views], [v.mask for v in case.views]))
-    if cases:
-        reconstruct(cases[0][2], cases[0][3], method="tree", centerlines=False)
     out = []
     for kind, seed, projections, masks in cases:
         start = time.perf_counter()
