@@ -1322,7 +1322,7 @@ def test_a_matching_never_pairs_into_the_region_it_avoids():
 
 
 @pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="os.fork is not available on this platform")
-@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # Python 3.12+: a fork under pytest-xdist's threads
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # Python 3.12+ warns of a fork where any thread runs
 def test_a_forked_build_returns_its_result_and_a_failed_or_abandoned_one_nothing():
     import time
 
@@ -1341,7 +1341,7 @@ def test_a_forked_build_returns_its_result_and_a_failed_or_abandoned_one_nothing
 
 
 @pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="os.fork is not available on this platform")
-@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # Python 3.12+: a fork under pytest-xdist's threads
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # Python 3.12+ warns of a fork where any thread runs
 def test_builds_in_processes_come_back_in_order_from_a_process_each_up_to_twice_the_cpus(monkeypatch):
     import os
 
@@ -1371,19 +1371,19 @@ def test_builds_in_processes_come_back_in_order_from_a_process_each_up_to_twice_
 
 
 @pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="os.fork is not available on this platform")
-@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # Python 3.12+: a fork under pytest-xdist's threads
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # Python 3.12+ warns of a fork where any thread runs
 def test_the_alternative_tree_built_in_a_forked_process_is_the_one_built_here(monkeypatch):
     from angiohull.reconstruction.model import _can_fork, forking
 
     _, projections, masks = _generated("rca", 7000)
-    here = reconstruct(projections, masks, method="tree", centerlines=False)  # no fork where threads run (xdist)
+    # (the default build here is one of the two below: forked where this process may fork, as under
+    # pytest-xdist, whose workers run one thread; sequential where it may not)
     monkeypatch.setitem(model.model_tree.__kwdefaults__, "settings", replace(MODEL_SETTINGS, fork_alternatives=False))
     sequential = reconstruct(projections, masks, method="tree", centerlines=False)
     monkeypatch.setattr(forking, "_can_fork", lambda: True)
     monkeypatch.setitem(model.model_tree.__kwdefaults__, "settings", MODEL_SETTINGS)
     forked = reconstruct(projections, masks, method="tree", centerlines=False)
-    for result in (here, forked):
-        np.testing.assert_array_equal(result.vessel_points_mm, sequential.vessel_points_mm)
-        np.testing.assert_array_equal(result.tree.points()[0], sequential.tree.points()[0])
-        assert result.model_build.mask_agreement == sequential.model_build.mask_agreement
+    np.testing.assert_array_equal(forked.vessel_points_mm, sequential.vessel_points_mm)
+    np.testing.assert_array_equal(forked.tree.points()[0], sequential.tree.points()[0])
+    assert forked.model_build.mask_agreement == sequential.model_build.mask_agreement
     assert isinstance(_can_fork(), bool)
