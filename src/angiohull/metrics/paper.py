@@ -19,13 +19,12 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 
 from .. import _validation as _v
 from ..errors import AngiohullError
 from ..geometry import Projection
-from ..rasterise import cell_silhouette, rasterise_points_paper
+from ..rasterise import cell_silhouette, dilated_square, rasterise_points_paper
 
 __all__ = [
     "PAPER_VOXEL_MM",
@@ -167,7 +166,7 @@ def dice2d_paper(points_mm: np.ndarray, projections: Sequence[Projection], masks
     for projection, mask, spacing in zip(projections, masks, spacings):
         side = paper_dilation_side_px(spacing)
         image = rasterise_points_paper(points_mm, projection)
-        dilated = ndi.binary_dilation(image, np.ones((side, side), dtype=bool))
+        dilated = dilated_square(image, side)  # ndi.binary_dilation with a side x side square, faster
         scores.append(dice2d(dilated, mask))
     return scores
 
