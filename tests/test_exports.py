@@ -436,3 +436,11 @@ def test_read_true_tree_bad_inputs(tmp_path, synthetic_case):
         read_true_tree(tmp_path / "array.npz")
     with pytest.raises(StudyError, match="nonpositive_radius_mm"):
         read_true_tree(good, nonpositive_radius_mm=-1.0)
+
+    data = good.read_bytes()  # a copy cut short: a zip archive without its directory
+    (tmp_path / "cut.npz").write_bytes(data[:len(data) // 3])
+    with pytest.raises(StudyError, match=r"cut\.npz: cannot read as a NumPy \.npz archive \(.*zip.*\); expected gt_centerlines"):
+        read_true_tree(tmp_path / "cut.npz")
+    (tmp_path / "picture.npy").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(32))  # a PNG under an .npy name
+    with pytest.raises(StudyError, match=r"picture\.npy: cannot read as a NumPy \.npy file \(it is none: .*begins with b'\\x89PNG"):
+        read_true_tree(tmp_path / "picture.npy")

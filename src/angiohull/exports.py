@@ -46,6 +46,7 @@ import numpy as np
 
 from . import _validation as _v
 from .errors import StudyError, TreeError
+from .io import load_numpy_file
 from .tree.model import Branch, VesselTree
 from .tree.solid import LumenVolume, SurfaceMesh
 
@@ -698,10 +699,7 @@ def _member(archive: Any, path: Path, key: str, expected: str) -> np.ndarray:
 def _read_npz(path: Path) -> VesselTree:
     expected = ("gt_centerlines.npz as written by angiohull synth: branch_names, parents (-1 root), "
                 "origin_vertices (-1 root) and an (M, 4) x, y, z, radius array per branch name")
-    try:
-        archive = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as exc:
-        raise StudyError(f"{path}: cannot read as a NumPy .npz archive ({exc}); expected {expected}") from None
+    archive = load_numpy_file(path, expected, "a NumPy .npz archive")
     if isinstance(archive, np.ndarray):
         raise StudyError(f"{path}: is a single .npy array, not an .npz archive; expected {expected}")
     with archive:
@@ -752,10 +750,7 @@ def _read_npz(path: Path) -> VesselTree:
 
 def _read_authors_npy(path: Path, nonpositive_radius_mm: float | None) -> VesselTree:
     expected = "the authors' gt_centerlines.npy: a (B, M, 4) array of x, y, z, radius in mm, main vessel first"
-    try:
-        loaded = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as exc:
-        raise StudyError(f"{path}: cannot read as a NumPy .npy file ({exc}); expected {expected}") from None
+    loaded = load_numpy_file(path, expected)
     if not isinstance(loaded, np.ndarray):
         loaded.close()
         raise StudyError(f"{path}: is an .npz archive, not a single .npy array; expected {expected}")

@@ -56,11 +56,33 @@ def _require_file(path: Path, expected: str) -> None:
         raise StudyError(f"{path}: is not a regular file; expected {expected}")
 
 
-def _load_npy(path: Path, expected: str) -> np.ndarray:
+_NUMPY_MAGIC = (b"\x93NUMPY", b"PK\x03\x04", b"PK\x05\x06")  # an .npy file; an .npz (zip) archive, or an empty one
+
+
+def load_numpy_file(path: Path, expected: str, kind: str = "a NumPy .npy file") -> Any:
+    """``np.load`` of the file's bytes, ``allow_pickle=False`` (an array, or an NpzFile for an
+    archive), any failure a StudyError naming the file and ``expected``: a file that is neither an
+    .npy file nor a zip archive is said to be so (not with NumPy's own guess that it holds pickled
+    objects), and a damaged archive is an error, not a zipfile traceback (read from memory, so no
+    file handle is left open when NumPy gives up on it)."""
+    import io
+    import zipfile
+
     try:
-        loaded = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as exc:
-        raise StudyError(f"{path}: cannot read as a NumPy .npy file ({exc}); expected {expected}") from None
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise StudyError(f"{path}: cannot read {kind} ({exc.strerror or exc}); expected {expected}") from None
+    if not data.startswith(_NUMPY_MAGIC):
+        raise StudyError(f"{path}: cannot read as {kind} (it is none: an .npy file begins with \\x93NUMPY and an "
+                         f".npz file is a zip archive, this one begins with {data[:8]!r}); expected {expected}")
+    try:
+        return np.load(io.BytesIO(data), allow_pickle=False)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise StudyError(f"{path}: cannot read as {kind} ({exc}); expected {expected}") from None
+
+
+def _load_npy(path: Path, expected: str) -> np.ndarray:
+    loaded = load_numpy_file(path, expected)
     if not isinstance(loaded, np.ndarray):  # an .npz archive behind an .npy name
         loaded.close()
         raise StudyError(f"{path}: is an .npz archive, not a single .npy array; expected {expected}")
