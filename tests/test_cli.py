@@ -91,6 +91,22 @@ def test_two_views_with_the_hull_get_a_note_pointing_to_the_tree_method(tmp_path
     assert two_view_hint(2, "tree") is None and two_view_hint(3, "hull") is None and two_view_hint(1, "hull") is None
 
 
+def test_one_view_with_the_hull_warns_and_builds_no_tree_from_its_cone(tmp_path, capsys):
+    """The hull of one view is its whole cone: the command says so, writes the points and no tree
+    (its skeleton was hundreds of branches, built in a minute, without a word)."""
+    study = ball_study(tmp_path / "study", primaries=(("ap", 0.0),))
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(study), "-o", str(out), "-k", "20", "--no-centerlines", "--no-figure",
+                 "--no-viewer", "--method", "hull"]) == 0
+    err = capsys.readouterr().err
+    warned = [line for line in err.splitlines() if line.startswith("angiohull: warning: one view:")]
+    assert len(warned) == 1 and "whole cone" in warned[0] and "two views or more" in warned[0]
+    assert "no vessel tree: one view: its visual hull is the view's whole cone" in err
+    report = json.loads((out / "report.json").read_text())
+    assert report["n_vessel_points"] > 0 and not (out / "tree.json").exists()
+    assert "one view" in report["tree"]["error"]
+
+
 def test_reconstruct_without_centerlines_and_figure(tmp_path):
     study = ball_study(tmp_path / "study")
     out = tmp_path / "out"

@@ -336,7 +336,7 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
     if message:
         warnings.warn(message, AgreementWarning, stacklevel=1)
     separation = workflow.view_separation_deg(study.projections, study.names)
-    message = workflow.view_angle_warning(separation)
+    message = workflow.view_angle_warning(separation) or workflow.one_view_warning(len(study.views))
     if message:
         warnings.warn(message, InputWarning, stacklevel=1)
     hint = workflow.two_view_hint(len(study.views), options.method)

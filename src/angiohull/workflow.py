@@ -38,7 +38,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from .tree.solid import SurfaceMesh
 
 __all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_agreement", "agreement_warning",
-           "view_separation_deg", "view_angle_warning", "MIN_VIEW_SEPARATION_DEG", "two_view_hint",
+           "view_separation_deg", "view_angle_warning", "MIN_VIEW_SEPARATION_DEG", "two_view_hint", "one_view_warning",
            "ambiguity_warning", "view_silhouettes", "evaluation_scores", "tree_evaluation_scores", "tree_summary",
            "build_report", "write_outputs", "ExtraOutput", "json_safe", "load_result_for_qca", "report_projections",
            "write_qca_outputs", "ResultFolder", "load_result_folder", "output_folder", "check_output_folder",
@@ -173,6 +173,16 @@ def view_angle_warning(separation_deg: dict[str, float]) -> str | None:
             f"{MIN_VIEW_SEPARATION_DEG:.0f} for every pair): the depth along it is poorly determined, and the result "
             f"with it (docs/tree-method.md measures how much); use views 30 degrees apart or more, and not nearly "
             f"opposite (report.json: view_separation_deg)")
+
+
+def one_view_warning(n_views: int) -> str | None:
+    """The warning to give for a single view (None otherwise): its visual hull is its whole cone of
+    rays, so the points say where the vessels may lie along each ray, not where they are."""
+    if n_views != 1:
+        return None
+    return ("one view: the visual hull is the view's whole cone of rays through the mask, which holds no depth "
+            "(the points say where along each ray a vessel may lie, not where it is; no vessel tree is built); "
+            "reconstruct from two views or more, 30 degrees apart or more")
 
 
 def two_view_hint(n_views: int, method: str) -> str | None:

@@ -302,7 +302,10 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         centerline_points = extract_centerlines(points, projections, checked_masks)
         timings["centerlines"] = time.perf_counter() - start
     vessel_tree, build, tree_error = None, None, None
-    if tree and len(points):
+    if tree and len(projections) < 2:  # (its skeleton would be the cone's: hundreds of branches, and a minute)
+        tree_error = ("one view: its visual hull is the view's whole cone of rays, which holds no depth; a vessel "
+                      "tree needs two views or more")
+    elif tree and len(points):
         start = time.perf_counter()
         try:
             vessel_tree, build = hull_tree(points, lattice, projections, checked_masks,
