@@ -88,6 +88,15 @@ def test_segment_a_png_and_bad_requests(tmp_path, angiograms, capsys):
     assert not (tmp_path / "x.png").exists()
     assert main(["segment", str(png), "-o", str(tmp_path / "x.png"), "--low-threshold", "0.9"]) == 2
     assert "low_threshold must not exceed high_threshold" in capsys.readouterr().err
+    tiny, flat = tmp_path / "tiny.png", tmp_path / "flat.png"
+    Image.fromarray(np.full((4, 4), 90, np.uint8)).save(tiny)
+    Image.fromarray(np.full((64, 64), 90, np.uint8)).save(flat)
+    assert main(["segment", str(tiny), "-o", str(tmp_path / "x.png")]) == 2  # the file named, not just the rule
+    assert f"{tiny}: image must be at least 8 x 8 pixels, got shape (4, 4)" in capsys.readouterr().err
+    assert main(["segment", str(flat), "-o", str(tmp_path / "x.png")]) == 2  # no advice on thresholds there
+    err = capsys.readouterr().err
+    assert f"{flat}: the image is flat (every pixel 90): it shows no vessel to segment; nothing written" in err
+    assert "--high-threshold" not in err and not (tmp_path / "x.png").exists()
 
 
 def test_study_from_dicom_then_reconstruct(tmp_path, angiograms, capsys):

@@ -109,6 +109,23 @@ def test_pure_noise_gives_no_vessel():
     assert not segment_vessels(flat).any()
 
 
+def test_a_noise_free_image_is_segmented_to_its_vessel_and_a_flat_one_to_nothing():
+    """A rendered image without noise has a robust noise level of 0 (most pixels alike): the
+    noise is then taken as a thousandth of the strongest contrast, so a crisp dark line is found,
+    pixel for pixel (nothing was, whatever the thresholds); a flat image still gives nothing."""
+    from angiohull.segmentation import flat_image_message
+
+    for dtype in (np.float64, np.uint8):
+        image = np.full((256, 256), 200, dtype=dtype)
+        image[120:126, 20:236] = 60
+        truth = image == 60
+        np.testing.assert_array_equal(segment_vessels(image), truth)
+        assert flat_image_message(image) is None
+    flat = np.full((64, 64), 7.0)
+    assert not segment_vessels(flat).any()
+    assert flat_image_message(flat) == "the image is flat (every pixel 7): it shows no vessel to segment"
+
+
 def test_small_dark_spots_are_removed():
     rng = np.random.default_rng(6)
     image = 1000.0 + rng.normal(0.0, 5.0, (200, 200))

@@ -120,6 +120,12 @@ def test_png_image_with_carm_geometry(tmp_path, runs):
     assert view.name == "lao" and view.source == "carm" and dice(view.mask, truth) >= 0.85
     _raises(tmp_path, [dict(entry, frame=1)], r"views\[0\]\.frame: view 'lao': frame: is only used with dicom: or a DICOM image:, "
                                                r"but lao\.png is not a DICOM file")
+    Image.fromarray(frames[1][:4, :4]).save(tmp_path / "tiny.png")  # too small to segment: the file is named
+    _raises(tmp_path, [dict(entry, image="tiny.png")],
+            r"views\[0\]\.image: view 'tiny': .*tiny\.png: image must be at least 8 x 8 pixels, got shape \(4, 4\)")
+    Image.fromarray(np.full((64, 64), 900, np.uint16)).save(tmp_path / "flat.png")
+    _raises(tmp_path, [dict(entry, image="flat.png")],
+            r"views\[0\]\.image: view 'flat': .*flat\.png: the image is flat \(every pixel 900\): it shows no vessel")
 
 
 def test_view_sources_are_checked(tmp_path, runs):

@@ -948,7 +948,8 @@ def _cmd_dicom_info(args) -> int:
 def _cmd_segment(args) -> int:
     from . import io
     from .dicom import read_xa_view
-    from .segmentation import segment_vessels
+    from .errors import SegmentationError
+    from .segmentation import flat_image_message, segment_vessels
     from .workflow import check_output_file, output_file
 
     params = _segmentation_parameters(args)
@@ -961,10 +962,15 @@ def _cmd_segment(args) -> int:
     else:
         view = read_xa_view(args.input, args.frame, parameters=params)
         image, where = view.image, f"{args.input} frame {view.frame} ({view.selection.reason}; {view.carm.clinical_name()})"
-    mask = segment_vessels(image, params)
+    try:
+        mask = segment_vessels(image, params)
+    except SegmentationError as exc:  # an image it cannot segment (too small, not finite)
+        raise AngiohullError(f"{where}: {exc}") from None
     if not mask.any():
-        raise AngiohullError(f"{where}: the segmentation found no vessel; nothing written (try a lower --high-threshold "
-                             "or --seed-snr, or --vessels bright for an inverted display)")
+        flat = flat_image_message(image)  # where thresholds cannot help
+        advice = "" if flat else (" (try a lower --high-threshold or --seed-snr, or --vessels bright for an inverted "
+                                  "display)")
+        raise AngiohullError(f"{where}: {flat or 'the segmentation found no vessel'}; nothing written{advice}")
     with output_file(args.output, inputs=[args.input], overwrite=args.overwrite, what="the mask") as partial:
         io.write_mask(partial, mask)
     print(f"{where}: {int(mask.sum())} vessel pixels of {mask.size}; wrote {args.output}")

@@ -132,6 +132,7 @@ __all__ = [
     "detect_field",
     "flatten_background",
     "vessel_contrast_score",
+    "flat_image_message",
 ]
 
 _METHODS = ("sato", "frangi")
@@ -504,10 +505,21 @@ def _flatten_both(image: np.ndarray, field: np.ndarray, params: SegmentationPara
         return attenuation, float("nan"), unclipped
     # The closing sits on the upper envelope of the noise: shift the background's median to 0.
     centre, sigma = _median_and_sigma(values)
+    if sigma == 0.0:  # no measurable noise (a rendered image): a thousandth of its strongest contrast
+        sigma = 1e-3 * float(values.max() - centre)  # (0 still for a flat image: nothing to find there)
     attenuation[field] -= centre
     if unclipped is not None:
         unclipped[field] -= centre
     return attenuation, sigma, unclipped
+
+
+def flat_image_message(image: np.ndarray) -> str | None:
+    """Why nothing can be segmented in ``image`` when every pixel holds the same value (None
+    otherwise): said instead of advice on thresholds, which cannot help there."""
+    array = np.asarray(image)
+    if array.size and np.all(array == array.flat[0]):
+        return f"the image is flat (every pixel {array.flat[0].item():g}): it shows no vessel to segment"
+    return None
 
 
 def _median_and_sigma(values: np.ndarray) -> tuple[float, float]:

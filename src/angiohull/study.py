@@ -46,7 +46,7 @@ from .errors import DicomError, GeometryError, InputWarning, SegmentationError, 
 from ._models import find_model, short_repr
 from ._yaml import read_yaml_file
 from .geometry import CArmGeometry, Projection
-from .segmentation import SegmentationParameters, segment_vessels, segment_vessels_detailed
+from .segmentation import SegmentationParameters, flat_image_message, segment_vessels, segment_vessels_detailed
 from .tree import VesselTree
 
 __all__ = ["View", "Study", "load_study", "save_study", "study_from_dicom", "DicomViewSummary", "FORMAT_VERSION",
@@ -521,13 +521,17 @@ def _read_view_mask(entry: _ViewEntry, root: Path, name: str, where: str, header
             image, frame_used = xa.image, xa.frame
     except StudyError as exc:  # DicomError is a StudyError
         raise _Problem(f"{where}.image", f"view {name!r}: {exc}") from None
-    segmented = segment_vessels_detailed(image, params)
+    try:
+        segmented = segment_vessels_detailed(image, params)
+    except SegmentationError as exc:  # an image it cannot segment (too small, not finite)
+        raise _Problem(f"{where}.image", f"view {name!r}: {image_path}: {exc}") from None
     mask = segmented.mask
     if not mask.any():
         raise _Problem(
             f"{where}.image",
-            f"view {name!r}: {image_path}: the segmentation found no vessel; check the image, or lower "
-            "segmentation: {high_threshold: ..., seed_snr: ...} (see angiohull.segmentation.SegmentationParameters)",
+            f"view {name!r}: {image_path}: " + (
+                flat_image_message(image) or "the segmentation found no vessel; check the image, or lower "
+                "segmentation: {high_threshold: ..., seed_snr: ...} (see angiohull.segmentation.SegmentationParameters)"),
         )
     return mask, frame_used, segmented.lumen_attenuation
 
