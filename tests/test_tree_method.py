@@ -1032,6 +1032,17 @@ def test_experiment_configurations_take_the_method_and_refuse_hull_only_options_
         ReconstructionSettings(method="tree", min_views=2)
 
 
+def test_two_views_along_one_line_are_named_as_the_reason_no_point_is_fixed():
+    """One view twice: every pixel pairs with itself along rays that do not cross; the error says
+    so instead of pointing at the calibration (or, where pairs were made, at the lattice)."""
+    projections = _views()
+    masks = _masks(_y(), projections)
+    with pytest.raises(ReconstructionError, match=r"no correspondence between the views' centerlines; the views look "
+                                                  r"along one line \(their central rays 0\.0 degrees from it at most\)"
+                                                  r".*30 degrees apart"):
+        reconstruct([projections[0]] * 2, [masks[0]] * 2, method="tree", centerlines=False)
+
+
 def test_an_empty_hull_gives_an_empty_result_when_allowed():
     projections = _views()
     masks = _masks(_y(), projections)

@@ -346,7 +346,8 @@ class _Matchings:
         starts, ends, r0, r1 = (np.concatenate(x) for x in zip(*tubes))
         if len(starts) == 0:
             raise ReconstructionError("the tree method found no correspondence between the views' centerlines; "
-                                      "check the calibration and that the masks show the same vessels")
+                                      + (_along_one_line([v.projection for v in self.views]) or "check the calibration and that the "
+                                         "masks show the same vessels"))
         own = [np.full((v.graph.n_pixels, 3), np.nan) for v in self.views]
         for a, b in self.pairs:
             own[a] = results[(a, b)][0]
@@ -481,6 +482,22 @@ def _tree_from_volume(projections: Sequence[Projection], masks: Sequence[np.ndar
     return tree, tree_build, counts
 
 
+def _along_one_line(projections: Sequence[Projection], within_deg: float = 5.0) -> str | None:
+    """Where every pair of views looks along nearly one line (within ``within_deg``): what to say
+    instead of a finer lattice (the rays of paired pixels then run along each other, and meet
+    nowhere). None otherwise."""
+    from itertools import combinations
+
+    from ...geometry import angle_between_views_deg
+
+    angles = [angle_between_views_deg(a, b) for a, b in combinations(projections, 2)]
+    nearest = max(min(angle, 180.0 - angle) for angle in angles)
+    if nearest >= within_deg:
+        return None
+    return (f"the views look along one line (their central rays {nearest:.1f} degrees from it at most), so the "
+            f"rays of the pixels they pair run along each other and fix no point; use views 30 degrees apart or more")
+
+
 def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice, *,
                support_points_mm: np.ndarray | None = None, initial_points_mm: np.ndarray | None = None,
                settings: ModelSettings = MODEL_SETTINGS,
@@ -544,7 +561,8 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         correspondences = [_Correspondence(settings.match.claim_cost, np.asarray(initial_points_mm, dtype=float),
                                            (), None)]
     if len(correspondences[0].initial) < 2:
-        raise ReconstructionError("the tree method's volume holds fewer than two lattice points; use a finer lattice")
+        raise ReconstructionError("the tree method's volume holds fewer than two lattice points; "
+                                  + (_along_one_line(projections) or "use a finer lattice"))
 
     tree_start = time.perf_counter()  # the bridge and every matching's tree, their agreement apart
     bridge = None  # the support hull's graphs, built once for every rebuild
