@@ -205,6 +205,7 @@ def test_round_trip_property(angles: tuple[float, float], sod_mm: float, extra_m
     except GeometryError:
         assume(False)
         return
+    assume(matrix[11] >= 0)  # the isocentre in front of the source (behind it: refused, test_bad_projection_matrix)
     views = [
         View.from_carm("c", _mask(0), CArmGeometry(*angles, sod_mm + extra_mm, sod_mm, spacing, SHAPE)),
         View("m", _mask(1), projection),
@@ -227,6 +228,9 @@ def test_save_study_bad_arguments(tmp_path: Path) -> None:
         save_study(tmp_path, [View.from_carm("LAO", np.zeros(SHAPE), view.carm)])
     with pytest.raises(StudyError, match=r"ground_truth_mm: expected an \(N, 3\) array .*shape \(2, 2\)"):
         save_study(tmp_path, [view], ground_truth_mm=np.zeros((2, 2)))
+    behind = View("m", view.mask, Projection(-np.array(MATRIX), view.mask.shape))
+    with pytest.raises(StudyError, match=r"view 'm': the isocentre .* depth w = -800 < 0, behind the source"):
+        save_study(tmp_path, [behind])
 
 
 def test_view_checks_its_fields() -> None:
@@ -345,6 +349,8 @@ def test_carm_missing_key(tmp_path: Path) -> None:
         ([MATRIX[0], MATRIX[1], [0.0, 0.0, float("nan"), 800.0]], r"expected 12 finite numbers, got non-finite"),
         ([MATRIX[0], MATRIX[1], [0.0, 0.0, float("inf"), 800.0]], r"expected 12 finite numbers, got non-finite"),
         ([[0.0] * 4] * 3, r"projection matrix is degenerate"),
+        ([[-x for x in row] for row in MATRIX], r"the isocentre \(the world origin, .*\) has depth w = -800 < 0, "
+                                                r"behind the source; .*multiply it by -1"),
     ],
 )
 def test_bad_projection_matrix(tmp_path: Path, matrix: Any, pattern: str) -> None:

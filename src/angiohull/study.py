@@ -310,6 +310,9 @@ class _ViewEntry(_Strict):
             raise ValueError(f"expected a 3x4 matrix (3 rows of 4 numbers), got {len(rows)} rows of lengths {lengths}")
         if not all(math.isfinite(value) for row in rows for value in row):
             raise ValueError(f"expected 12 finite numbers, got non-finite values (nan or inf): {rows}")
+        problem = _isocentre_behind(rows[2][3])
+        if problem:
+            raise ValueError(problem)
         return rows
 
     @model_validator(mode="after")
@@ -761,6 +764,17 @@ def _relative(path: Path, folder: Path) -> str:
         return str(path.resolve())
 
 
+def _isocentre_behind(depth: float) -> str | None:
+    """What is wrong with a projection matrix whose isocentre depth ``P[2, 3]`` (the w of the world
+    origin, where the cube of interest is centred) is negative: it lies behind the source. None
+    otherwise (0 is the degenerate matrices' error, given where the matrix is read)."""
+    if depth >= 0:
+        return None
+    return (f"the isocentre (the world origin, where the cube of interest is centred) has depth w = {depth:g} < 0, "
+            f"behind the source; w > 0 in front (DESIGN: P maps [X, Y, Z, 1] to [u w, v w, w]); a matrix of the "
+            f"opposite sign projects the same pixels: multiply it by -1")
+
+
 def _view_entry(view: View, mask_file: str, folder: Path) -> dict[str, Any]:
     entry: dict[str, Any] = {"name": view.name, "mask": mask_file}
     if view.source == "dicom":
@@ -770,6 +784,9 @@ def _view_entry(view: View, mask_file: str, folder: Path) -> dict[str, Any]:
     elif view.carm is not None:
         entry["carm"] = _carm_entry(view.carm)
     else:  # tolist() gives Python floats, which PyYAML writes with repr: exact round trip
+        problem = _isocentre_behind(float(view.projection.matrix[2, 3]))
+        if problem:  # (the study could not be loaded back)
+            raise StudyError(f"{folder}: view {view.name!r}: {problem}")
         entry["projection_matrix"] = view.projection.matrix.tolist()
     return entry
 
