@@ -725,8 +725,12 @@ def test_bad_input_raises_one_clear_qca_error():
         branch_profile(tree, 7)
     with pytest.raises(QcaError, match=r"segment 50-10 mm of branch 0"):
         segment_view_map(tree, 0, 50, 10)
-    with pytest.raises(QcaError, match=r"segment 0-1e\+06 mm of branch 0.*30\.0 mm long"):
+    with pytest.raises(QcaError, match=r"segment 0-1e\+06 mm of branch 0.*30\.000 mm long"):
         segment_view_map(tree, 0, 0, 1e6)
+    odd = VesselTree((Branch(np.array([[0.0, 0, 0], [126.3975, 0, 0]]), 1.0),))  # 126.3975 mm
+    with pytest.raises(QcaError, match=r"126\.397 mm long; give 0 <= start < end <= 126\.397 mm") as info:
+        segment_view_map(odd, 0, 0, 126.4)
+    segment_view_map(odd, 0, 0, float(str(info.value).split("<= ")[-1].split(" mm")[0]))  # the end it names is taken
     with pytest.raises(QcaError, match=r"branch 5 does not exist"):
         segment_view_map(tree, 5)
     with pytest.raises(QcaError, match=r"primary range \(-200, 0\)"):

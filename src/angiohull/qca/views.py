@@ -160,8 +160,9 @@ def segment_points(tree: VesselTree, branch: int, start_mm: float | None = None,
     lo = 0.0 if start_mm is None else float(start_mm)
     hi = float(arc[-1]) if end_mm is None else float(end_mm)
     if not (math.isfinite(lo) and math.isfinite(hi)) or lo < -1e-9 or hi > arc[-1] + 1e-9 or hi - lo <= 0:
+        length = math.floor(float(arc[-1]) * 1000.0) / 1000.0  # rounded down: the end it names is accepted
         raise QcaError(f"segment {lo:g}-{hi:g} mm of branch {branch} ({b.name!r}) does not exist: the branch is "
-                       f"{arc[-1]:.1f} mm long; give 0 <= start < end <= {arc[-1]:.1f} mm")
+                       f"{length:.3f} mm long; give 0 <= start < end <= {length:.3f} mm")
     lo, hi = max(lo, 0.0), min(hi, float(arc[-1]))
     s = np.linspace(lo, hi, max(2, int(math.ceil((hi - lo) / step_mm)) + 1))
     points = np.column_stack([np.interp(s, arc, b.points_mm[:, k]) for k in range(3)])
