@@ -153,6 +153,11 @@ def test_empty_hull_names_the_view_and_suggests_calibration():
     with pytest.raises(EmptyHullError, match=r"view 1 \('lateral'\).*calibration") as info:
         reconstruct(projections, [a, b], resolution=40, view_names=["frontal", "lateral"], method="hull")
     assert info.value.view_index == 1 and info.value.points_before > 0
+    with pytest.raises(EmptyHullError, match=r"The lattice is coarse: its points lie 3\.1 mm apart \(resolution 40\)"):
+        reconstruct(projections, [a, b], resolution=40, method="hull")  # (said besides, over 2 mm)
+    with pytest.raises(EmptyHullError) as info:
+        reconstruct(projections, [a, b], resolution=100, method="hull")
+    assert "lattice is coarse" not in str(info.value)  # (its points 1.2 mm apart)
     empty = reconstruct(projections, [a, b], resolution=40, allow_empty=True, method="hull")
     assert empty.vessel_points_mm.shape == (0, 3) and empty.centerline_points_mm.shape == (0, 3)
 

@@ -155,17 +155,23 @@ def _checked_carving(threshold_px: float, engine: str, device: str) -> tuple[flo
     return threshold, engine
 
 
+_COARSE_LATTICE_MM = 2.0  # an empty hull's error names the lattice when its points lie farther apart than this
+
+
 def _empty_hull_error(outcome: CarveOutcome, names: tuple[str, ...], lattice: Lattice) -> EmptyHullError:
     order = outcome.order if outcome.order is not None else tuple(range(len(names)))
     counts = (lattice.n_points,) + outcome.survivors_per_view
     step = next(i for i, n in enumerate(outcome.survivors_per_view) if n == 0)
     view = order[step]
     applied = ", ".join(f"{names[i]}: {n}" for i, n in zip(order, outcome.survivors_per_view))
+    coarse = (f" The lattice is coarse: its points lie {lattice.spacing_mm:.1f} mm apart (resolution "
+              f"{lattice.resolution}), and a vessel a millimetre or two wide falls between them; a finer "
+              f"resolution keeps it." if lattice.spacing_mm > _COARSE_LATTICE_MM else "")
     return EmptyHullError(
         f"the visual hull is empty: view {view} ({names[view]!r}) removed the last {counts[step]} points "
         f"(survivors after each view, in the order applied: {applied}). The views do not agree on any "
         f"point: check the calibration (angles, SID/SOD, pixel spacing, image shifts) and that the masks "
-        f"show the same vessels; a larger threshold_px tolerates small misalignments.",
+        f"show the same vessels; a larger threshold_px tolerates small misalignments.{coarse}",
         view_index=view, view_name=names[view], points_before=counts[step],
     )
 
