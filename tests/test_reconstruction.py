@@ -173,6 +173,8 @@ def test_empty_hull_names_the_view_and_suggests_calibration():
     ("threshold", "threshold_px"),
     ("engine", "unknown engine"),
     ("type", "expected a Projection"),
+    ("single", r"masks must be a sequence with one item per view, got a single ndarray; wrap it in a list"),
+    ("single_projection", r"projections must be a sequence .* got a single Projection"),
 ])
 def test_bad_inputs_get_clear_errors(case, match):
     p = view(0, 0)
@@ -183,6 +185,10 @@ def test_bad_inputs_get_clear_errors(case, match):
         args = ([], [])
     elif case == "count":
         args = ([p, p], [m])
+    elif case == "single":
+        args = ([p], m)
+    elif case == "single_projection":
+        args = (p, [m])
     elif case == "shape":
         args = ([p], [np.ones((64, 64))])
     elif case == "empty":
@@ -201,6 +207,16 @@ def test_bad_inputs_get_clear_errors(case, match):
         args = ([p.matrix], [m])
     with pytest.raises(ReconstructionError, match=match):
         reconstruct(*args, **kwargs)
+
+
+def test_views_may_come_as_any_iterables_and_masks_as_one_stacked_array():
+    p, q = view(0, 0), view(90, 0)
+    m = np.zeros((128, 128), bool)
+    m[60:70, 60:70] = True
+    listed = reconstruct([p, q], [m, m], resolution=30, centerlines=False, method="hull")
+    for projections, masks in (((x for x in (p, q)), (x for x in (m, m))), ((p, q), np.stack([m, m]))):
+        again = reconstruct(projections, masks, resolution=30, centerlines=False, method="hull")
+        np.testing.assert_array_equal(again.vessel_points_mm, listed.vessel_points_mm)
 
 
 def test_centerlines_of_a_straight_tube_lie_on_its_axis():

@@ -107,6 +107,19 @@ class ReconstructionResult:
         return self.timings_s["reconstruction"]
 
 
+def _as_list(views, what: str) -> list:
+    """``views`` (any iterable, one item per view: a generator has no len()) as a list; a single
+    projection or mask given alone is said to be so."""
+    if isinstance(views, Projection) or (isinstance(views, np.ndarray) and views.ndim == 2 and views.dtype != object):
+        raise ReconstructionError(f"{what} must be a sequence with one item per view, got a single "
+                                  f"{type(views).__name__}; wrap it in a list")
+    try:
+        return list(views)
+    except TypeError:
+        raise ReconstructionError(f"{what} must be a sequence with one item per view, got "
+                                  f"{type(views).__name__}") from None
+
+
 def _check_inputs(projections: Sequence[Projection], masks: Sequence[np.ndarray],
                   view_names: Sequence[str] | None) -> tuple[list[np.ndarray], tuple[str, ...]]:
     if len(projections) == 0:
@@ -246,6 +259,7 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     -------
     ReconstructionResult
     """
+    projections, masks = _as_list(projections, "projections"), _as_list(masks, "masks")
     checked_masks, names = _check_inputs(projections, masks, view_names)
     method = options.chosen_method(method, preset, min_views, tree)
     preset = "paper" if preset is None else preset
