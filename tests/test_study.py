@@ -256,6 +256,8 @@ def test_missing_study_file(tmp_path: Path) -> None:
 
 def test_yaml_syntax_error(tmp_path: Path) -> None:
     _raises_at(tmp_path, "angiohull: 1\nviews: [\n  {mask: a.png\n", r"invalid YAML at line \d+, column \d+: ")
+    # a control character: PyYAML's reader refuses it as the loader starts (a traceback before)
+    _raises_at(tmp_path, "angiohull: 1\nviews: []\x07\n", r"invalid YAML: unacceptable character #x0007")
 
 
 @pytest.mark.parametrize(("text", "got"), [("", "an empty file"), ("- 1\n- 2\n", "a list"), ("just text\n", "a str")])

@@ -182,7 +182,10 @@ def load_yaml(source: Union[str, bytes], where: str, *, error: type[AngiohullErr
         raise error(f"{where}: the file is {size / 1048576:.1f} MiB; angiohull reads YAML files of at most "
                     f"{MAX_YAML_BYTES // 1048576} MiB (its study and experiment files take kilobytes)")
     text = _decode(source, where, error) if isinstance(source, bytes) else source
-    loader = _StrictLoader(text)
+    try:
+        loader = _StrictLoader(text)
+    except yaml.YAMLError as exc:  # the reader refuses control characters as it starts
+        raise error(f"{where}: invalid YAML: {' '.join(str(exc).split())}") from None
     try:
         return loader.get_single_data()
     except _Refused as exc:
