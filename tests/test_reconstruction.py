@@ -175,6 +175,8 @@ def test_empty_hull_names_the_view_and_suggests_calibration():
     ("type", "expected a Projection"),
     ("single", r"masks must be a sequence with one item per view, got a single ndarray; wrap it in a list"),
     ("single_projection", r"projections must be a sequence .* got a single Projection"),
+    ("progress", r"progress must be a function of one str \(or None\), got int"),
+    ("names", r"view_names must be a sequence of str, one per view, got 'ab'"),
 ])
 def test_bad_inputs_get_clear_errors(case, match):
     p = view(0, 0)
@@ -189,6 +191,10 @@ def test_bad_inputs_get_clear_errors(case, match):
         args = ([p], m)
     elif case == "single_projection":
         args = (p, [m])
+    elif case == "progress":
+        kwargs = {"progress": 5}
+    elif case == "names":
+        kwargs = {"view_names": "ab"}
     elif case == "shape":
         args = ([p], [np.ones((64, 64))])
     elif case == "empty":

@@ -114,6 +114,9 @@ def test_resampling_keeps_the_ends_spaces_evenly_and_moves_parent_points_along()
     assert fine.length_mm == pytest.approx(tree.length_mm)
     with pytest.raises(TreeError, match="step_mm must be a positive"):
         tree.resampled(0.0)
+    with pytest.raises(TreeError, match=r"a step of 1e-09 mm cuts a branch of .* into 2.*pieces, more than "
+                                        r"10,000,000; use a larger step_mm"):
+        tree.resampled(1e-9)  # (numpy's MemoryError before, asking for tens of GiB)
 
 
 def test_capsules_join_a_child_that_starts_off_its_parent_point():

@@ -162,9 +162,17 @@ def point_at_arc(points_mm: np.ndarray, arc_mm: np.ndarray, at_mm: float) -> np.
     return np.array([np.interp(at_mm, arc_mm, points_mm[:, k]) for k in range(3)])
 
 
+MAX_RESAMPLED_POINTS = 10_000_000
+"""A branch resampled to more points than this is refused (a step far below any vessel's scale)."""
+
+
 def _steps(length_mm: float, step_mm: float) -> int:
     step = _v.positive_finite(step_mm, "step_mm", error=TreeError)
-    return max(1, int(np.ceil(length_mm / step - 1e-9)))
+    steps = max(1, int(np.ceil(length_mm / step - 1e-9)))
+    if steps > MAX_RESAMPLED_POINTS:
+        raise TreeError(f"a step of {step:g} mm cuts a branch of {length_mm:.1f} mm into {steps:,} pieces, more than "
+                        f"{MAX_RESAMPLED_POINTS:,}; use a larger step_mm")
+    return steps
 
 
 @dataclass(frozen=True)
