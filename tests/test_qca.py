@@ -717,6 +717,12 @@ def test_bad_input_raises_one_clear_qca_error():
     with pytest.raises(QcaError, match=r"10 mm") as info:
         analyse_tree(short)
     assert "5.0 mm" in str(info.value)
+    sparse = VesselTree((Branch(np.array([[0.0, 0, 0], [60.0, 0, 0]]), 1.0),))  # long enough, too few points
+    with pytest.raises(QcaError, match=r"branch 0, is 60\.0 mm with 2 points; the fit needs 10 mm and 8 points"):
+        analyse_tree(sparse)
+    assert analyse_tree(sparse.resampled(0.5)).branches[0].profile.reference is not None  # as the error says
+    with pytest.raises(QcaError, match=r"view_names needs one name per projection: \['a'\] for 2 projections"):
+        analyse_tree(two_branch_tree(), [CArmGeometry(0, 0, 1200, 800, (0.3, 0.3), (512, 512)).projection()] * 2, ["a"])
     with pytest.raises(QcaError, match=r"5\.0 mm .*10 mm"):
         branch_profile(short, 0)
     assert branch_profile(short, 0, strict=False).reference is None

@@ -306,6 +306,8 @@ def analyse_tree(tree: VesselTree, projections: Sequence[Projection] = (), view_
     if attenuation is not None and len(attenuation) != len(projections):
         raise QcaError(f"attenuation needs one image per projection: {len(attenuation)} images for "
                        f"{len(projections)} projections")
+    if view_names is not None and (isinstance(view_names, str) or len(view_names) != len(projections)):
+        raise QcaError(f"view_names needs one name per projection: {view_names!r} for {len(projections)} projections")
     vessels = tree_vessels(tree, settings.vessels)
     profiles: dict[int, DiameterProfile] = {}
     for vessel in vessels.vessels:
@@ -318,9 +320,12 @@ def analyse_tree(tree: VesselTree, projections: Sequence[Projection] = (), view_
                                   float(diameter.min()), float(diameter.max()), profile, _tortuosity(b.points_mm)))
     if all(b.profile.reference is None for b in branches):
         longest = max(branches, key=lambda b: b.length_mm)
+        points = tree.branches[longest.index].n_points
         raise QcaError(f"no branch of the tree is long enough for a reference diameter fit (the longest, branch "
-                       f"{longest.index}, is {longest.length_mm:.1f} mm; the fit needs "
-                       f"{settings.profile.min_reference_length_mm:g} mm)")
+                       f"{longest.index}, is {longest.length_mm:.1f} mm with {points} points; the fit needs "
+                       f"{settings.profile.min_reference_length_mm:g} mm and {settings.profile.min_reference_points} "
+                       f"points: ProfileSettings.min_reference_length_mm, min_reference_points; a branch of few "
+                       f"points can be resampled first, VesselTree.resampled)")
     calibrations: tuple[ViewCalibration, ...] = ()
     if attenuation is not None and any(b.profile.lesions for b in branches):
         branches, calibrations = _lesions_on_images(tree, branches, projections, attenuation, settings.attenuation)
