@@ -143,6 +143,27 @@ def test_find_runs_and_bad_report_inputs(quick_runs, tmp_path, capsys):
     assert "neither a run directory" in capsys.readouterr().err
 
 
+def test_a_run_whose_configuration_was_edited_or_whose_record_is_damaged_is_reported_with_a_warning(quick_runs,
+                                                                                                      tmp_path):
+    import shutil
+
+    from angiohull.errors import InputWarning
+    from angiohull.experiments.runner import load_run
+
+    run = tmp_path / "translation"
+    shutil.copytree(quick_runs / "translation", run)
+    record = json.loads((run / "run.json").read_text())
+    assert len(record["config_file_sha256"]) == 64
+    load_run(run)  # as written: no warning (they are errors here)
+    config = run / "config.yaml"
+    config.write_text(config.read_text().replace("resolution: 100", "resolution: 40"))
+    with pytest.warns(InputWarning, match=r"config\.yaml: edited after the rows were made"):
+        assert load_run(run).config.reconstruction.resolution == 40  # the file as it is now, said so
+    (run / "run.json").write_text("{ cut")
+    with pytest.warns(InputWarning, match=r"run\.json: cannot be read .*goes on without the run's record"):
+        assert load_run(run).record == {}
+
+
 def test_figure_titles_say_what_ran_and_are_never_cut(report):
     from angiohull.experiments.figures import _wrapped
     from angiohull.experiments.report import figure_title

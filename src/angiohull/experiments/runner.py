@@ -214,6 +214,8 @@ def _update_run_json(run_dir: Path, config: ExperimentConfig, total: int, rows: 
         "mode": config.mode,
         "angiohull_version": __version__,
         "config_sha256": hashlib.sha256(_canonical(config).encode()).hexdigest(),
+        # the file's own bytes: `report` warns when config.yaml was edited after the rows were made
+        "config_file_sha256": hashlib.sha256((run_dir / CONFIG_FILE).read_bytes()).hexdigest(),
         "cases_total": total,
         "cases_done": len(rows),
         "status_counts": _status_counts(rows),
@@ -569,9 +571,24 @@ def load_run(run_dir: str | Path) -> RunData:
     rows_path = run_dir / ROWS_FILE
     rows = read_rows(rows_path, columns)[1] if rows_path.exists() else []
     rows.sort(key=lambda r: r["case_id"])
-    try:
-        record = json.loads((run_dir / RUN_FILE).read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError):
-        record = {}
+    record: dict[str, Any] = {}
+    if (run_dir / RUN_FILE).exists():
+        import warnings
+
+        from ..errors import InputWarning
+
+        try:
+            loaded = json.loads((run_dir / RUN_FILE).read_text(encoding="utf-8"))
+            record = loaded if isinstance(loaded, dict) else {}
+            if not isinstance(loaded, dict):
+                raise ValueError(f"holds a {type(loaded).__name__}, not an object")
+        except (OSError, ValueError) as exc:  # (json.JSONDecodeError is a ValueError)
+            warnings.warn(f"{run_dir / RUN_FILE}: cannot be read ({exc}); the report goes on without the run's record "
+                          f"(its wall time and where it ran)", InputWarning, stacklevel=2)
+        stored_sha = record.get("config_file_sha256")  # (runs before 2026-12-07 have none)
+        if stored_sha is not None and stored_sha != hashlib.sha256(stored.read_bytes()).hexdigest():
+            warnings.warn(f"{stored}: edited after the rows were made (its bytes differ from those {RUN_FILE} "
+                          f"recorded, config_file_sha256); the report describes the file as it is now, which may not "
+                          f"be the experiment that ran", InputWarning, stacklevel=2)
     total = int(record.get("cases_total", len(expand_cases(config))))
     return RunData(run_dir, config, columns, rows, record, total)
