@@ -138,6 +138,9 @@ def test_bad_options_are_clear_errors(kwargs, message):
 def test_a_detector_too_small_for_the_tree_is_an_error():
     with pytest.raises(AngiohullError, match="cube of interest"):
         make_case(SynthOptions(seed=1, size=128))
+    # pixels so coarse that the vessels draw none: said so (it was put on corruptions that were not asked for)
+    with pytest.raises(AngiohullError, match=r"the tree draws no vessel pixel on a detector of 4 x 4 pixels of 50 x 50 mm"):
+        make_case(SynthOptions(seed=1, size=4, pixel_mm=50.0, views=("RAO 30 CRA 30", "LAO 60 CRA 30")))
 
 
 def test_synth_command_writes_a_study_that_evaluates(tmp_path, capsys):

@@ -210,6 +210,11 @@ def make_case(options: SynthOptions = SynthOptions(), *, tree_params: TreeParams
             counts.append(int(np.count_nonzero(after != current)))
             current = after
         changed.append(tuple(counts))
+        if not mask.any():  # before any corruption: the detector is too coarse (or small) for the vessels
+            rows, cols = geometry.image_shape
+            raise AngiohullError(f"view {name}: the tree draws no vessel pixel on a detector of {rows} x {cols} pixels "
+                                 f"of {geometry.pixel_spacing_mm[0]:g} x {geometry.pixel_spacing_mm[1]:g} mm: use "
+                                 f"smaller pixels or more of them")
         if not current.any():
             raise AngiohullError(f"view {name}: the corruptions erased all {int(np.count_nonzero(mask))} vessel pixels; "
                                  f"every view needs some left: use fewer or milder corruptions (e.g. a smaller N in "
