@@ -229,7 +229,7 @@ class Sweep(_Model):
 
     corruption: Literal[CORRUPTION_KINDS] = Field(description="translate, scale, rotate, fp, fn, missing, blob, catheter")  # type: ignore[valid-type]
     values: SweepValues
-    views: Union[Literal["all"], tuple[Annotated[int, Field(ge=0)], ...], None] = Field(
+    views: Union[Literal["all"], Annotated[tuple[Annotated[int, Field(ge=0)], ...], Field(min_length=1)], None] = Field(
         None, description="views it corrupts (default: view 0 for translate/scale/rotate, all views otherwise)")
 
     @model_validator(mode="after")
@@ -427,6 +427,16 @@ class ExperimentConfig(_Model):
             raise _problem("design", f"expands to {count:,} cases; expected at most {MAX_CASES:,} (a million cases "
                                      f"take weeks on a workstation, and their records alone gigabytes): lower "
                                      f"trees, selections, triplets or the sweep's count")
+        fewest = self.fewest_views()
+        if self.reconstruction.calibrate_scale and fewest < 3:
+            raise _problem("reconstruction.calibrate_scale", f"needs three views or more in every case; this design's "
+                                                             f"smallest case has {fewest}")
+        for index, spec in enumerate(self.generator.corruption_specs()):
+            views = spec.views if isinstance(spec.views, tuple) else ()
+            if any(i >= fewest for i in views):
+                raise _problem(f"generator.corruptions[{index}]", f"got view index {max(views)}; expected an index "
+                                                                  f"below {fewest}, the views of this design's smallest "
+                                                                  f"case")
         need = self.reconstruction.min_views
         if need is not None and need > self.fewest_views():
             raise _problem("reconstruction.min_views", f"got {need}; expected at most {self.fewest_views()}, the "

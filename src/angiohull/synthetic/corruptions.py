@@ -248,7 +248,10 @@ class CorruptionSpec:
                 raise AngiohullError(f"corruption {self.kind}: views must be indices or 'all', got {self.views!r}")
         elif self.views is not None:
             views = tuple(int(i) for i in self.views)
-            if not views or any(i < 0 for i in views):
+            if not views:
+                raise AngiohullError(f"corruption {self.kind}: no view index given (an empty list); give view indices "
+                                     f"from 0, or leave the views out for the default")
+            if any(i < 0 for i in views):
                 raise AngiohullError(f"corruption {self.kind}: view indices must be >= 0, got {self.views!r}")
             object.__setattr__(self, "views", views)
         object.__setattr__(self, "values", values)
