@@ -141,6 +141,11 @@ def test_find_runs_and_bad_report_inputs(quick_runs, tmp_path, capsys):
     assert find_runs([quick_runs / "general"]) == [quick_runs / "general"]
     assert main(["report", str(tmp_path), "-o", str(tmp_path / "out")]) == 2
     assert "neither a run directory" in capsys.readouterr().err
+    assert main(["report", str(tmp_path / "nowhere"), "-o", str(tmp_path / "out")]) == 2
+    assert "nowhere: not found; expected a run directory" in capsys.readouterr().err
+    assert main(["report", str(quick_runs / "general"), str(quick_runs / "general"), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err  # the folders named
+    assert f"two runs of the same experiment (general: {quick_runs / 'general'}, {quick_runs / 'general'})" in err
 
 
 def test_a_run_whose_configuration_was_edited_or_whose_record_is_damaged_is_reported_with_a_warning(quick_runs,

@@ -12,6 +12,7 @@ import pytest
 
 from angiohull.cli import main
 from angiohull.experiments.config import ConfigError, load_config, shipped_config_names
+from angiohull.errors import AngiohullError
 from angiohull.experiments.rows import RowsJournal, format_value, parse_value, read_rows, write_atomic
 from angiohull.experiments.runner import run_experiment
 
@@ -163,6 +164,10 @@ def test_journal_drops_a_partial_line_and_atomic_writes_leave_no_temporaries(tmp
     assert path.read_text().endswith("\n")
     write_atomic(tmp_path / "x.txt", "hello\n")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rows.csv", "x.txt"]
+    path.write_text(path.read_text().replace("0,ok,", "0,fine,"))  # a status no case gives: refused, not averaged in
+    with pytest.raises(AngiohullError, match=r"rows\.csv: line 2, column 'status': 'fine' is not one of ok, empty, "
+                                             r"failed, error; the file was changed by hand"):
+        read_rows(path, columns)
 
 
 def test_invocations_that_start_within_the_same_second_are_all_recorded(tmp_path, monkeypatch):

@@ -53,6 +53,7 @@ from ..synthetic.tree import TORTUOSITY_LEVELS, TREE_KINDS, build_tree, draw_tre
 from ..synthetic.views import parse_views
 from ..tree import VesselTree
 from .config import TREE_METRICS, AnglesDesign, ExperimentConfig, NViewsDesign, TreesDesign, grid_values
+from .rows import STATUSES
 
 __all__ = [
     "derive_seed", "tree_seed", "sphere_directions", "direction_angles", "angle_matrix_sigma_min",
@@ -62,7 +63,6 @@ __all__ = [
 
 TREE_STREAM, DIRECTION_STREAM, SELECTION_STREAM, SWEEP_STREAM, TRIPLET_STREAM = 1, 2, 3, 4, 5
 
-STATUSES = ("ok", "empty", "failed", "error")
 """``ok``; ``empty``: the visual hull is empty (Dice 0, Chamfer nan); ``failed``: the case could not be
 built or reconstructed (metrics nan, reason given); ``error``: an unexpected exception (metrics nan)."""
 

@@ -44,6 +44,9 @@ def find_runs(paths: Sequence[str | Path]) -> list[Path]:
     found: list[Path] = []
     for raw in paths:
         path = Path(raw)
+        if not path.exists():
+            raise AngiohullError(f"{path}: not found; expected a run directory (with {CONFIG_FILE}) or a folder of "
+                                 f"run directories")
         if (path / CONFIG_FILE).is_file():
             found.append(path)
             continue
@@ -313,7 +316,8 @@ def build_report(run_dirs: Sequence[str | Path], out_dir: str | Path) -> Path:
     names = [r.config.name for r in runs]
     duplicates = sorted({n for n in names if names.count(n) > 1})
     if duplicates:
-        raise AngiohullError(f"two runs of the same experiment ({', '.join(duplicates)}); report them separately")
+        listed = "; ".join(f"{n}: {', '.join(str(r.run_dir) for r in runs if r.config.name == n)}" for n in duplicates)
+        raise AngiohullError(f"two runs of the same experiment ({listed}); report them separately")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     analyses = [analyse_run(run) for run in runs]

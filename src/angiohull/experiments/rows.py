@@ -29,6 +29,8 @@ __all__ = ["RowsJournal", "read_rows", "format_value", "parse_value", "rows_to_c
            "INT_COLUMNS", "TEXT_COLUMNS"]
 
 INT_COLUMNS = frozenset({"case_id", "tree_index", "tree_seed", "n_views", "n_points", "count"})
+STATUSES = ("ok", "empty", "failed", "error")
+"""A case's outcome, the ``status`` column (:func:`angiohull.experiments.cases.run_case`)."""
 TEXT_COLUMNS = frozenset({"tortuosity", "views", "view_ids", "corruption", "status", "reason"})
 
 
@@ -137,6 +139,9 @@ def read_rows(path: str | Path, columns: Sequence[str] | None = None) -> tuple[l
                 kind = "an integer" if column in INT_COLUMNS else "a number (or empty, or nan)"
                 raise AngiohullError(f"{path}: line {number}, column {column!r}: {cell!r} is not {kind}; "
                                      f"{_DAMAGED}") from None
+        if "status" in row and row["status"] not in STATUSES:
+            raise AngiohullError(f"{path}: line {number}, column 'status': {row['status']!r} is not one of "
+                                 f"{', '.join(STATUSES)}; {_DAMAGED}")
         if row["case_id"] not in seen:
             seen.add(row["case_id"])
             rows.append(row)
