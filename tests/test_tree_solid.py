@@ -92,7 +92,7 @@ def test_signed_distance_against_every_capsule():
 def test_grid_step_follows_the_smallest_radius_and_refuses_huge_grids():
     assert default_step_mm(_straight(radius=0.4)) == pytest.approx(0.2)
     assert default_step_mm(_straight(radius=2.0)) == pytest.approx(0.3)
-    with pytest.raises(TreeError, match="use a larger step"):
+    with pytest.raises(TreeError, match="give a larger step_mm"):
         surface_mesh(_straight(radius=1.0, length=200.0), step_mm=0.01)
     with pytest.raises(TreeError, match="step_mm must be a positive"):
         surface_mesh(_straight(), step_mm=-1.0)

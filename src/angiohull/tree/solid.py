@@ -194,7 +194,9 @@ class _Grid:
         shape = np.floor((high + 2 * step_mm - origin) / step_mm).astype(np.int64) + 1
         if int(np.prod(shape)) > 4 * MAX_GRID_VOXELS:
             raise TreeError(f"a grid step of {step_mm:.3g} mm needs {int(np.prod(shape)):,} voxels for this tree "
-                            f"({(high - low).round(1).tolist()} mm); use a larger step")
+                            f"({(high - low).round(1).tolist()} mm); give a larger step_mm (its default, "
+                            f"default_step_mm, is half the tree's smallest radii: a tree this thin and flat needs "
+                            f"one given)")
         lo = np.floor((np.minimum(a, b) - radius[:, None] - band - origin) / step_mm).astype(np.int64)
         hi = np.ceil((np.maximum(a, b) + radius[:, None] + band - origin) / step_mm).astype(np.int64)
         axes = tuple((origin[k] + step_mm * np.arange(shape[k])).astype(np.float32) for k in range(3))
