@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ import pytest
 import yaml
 from PIL import Image
 
-from angiohull.errors import DicomError, DicomGeometryWarning, StudyError
+from angiohull.errors import DicomError, DicomGeometryWarning, InputWarning, StudyError
 from angiohull.geometry import CArmGeometry
 from angiohull.io import write_mask
 from angiohull.reconstruction import reconstruct
@@ -223,3 +224,14 @@ def test_study_from_dicom_all_frames_of_a_rotational_run(tmp_path, runs):
         study_from_dicom([path], tmp_path / "x", frame=0, all_frames=True)
     with pytest.raises(StudyError, match="needs at least one DICOM file"):
         study_from_dicom([], tmp_path / "x")
+
+
+def test_the_same_image_given_twice_becomes_two_views_with_a_warning(tmp_path, runs):
+    path = runs["lao"][0]
+    with pytest.warns(InputWarning, match=r"lao\.dcm: the same image as .*lao\.dcm \(SOP Instance UID .+\): both become "
+                                          r"views, which look along one line"):
+        _, summaries = study_from_dicom([path, path], tmp_path / "twice", frame=1)
+    assert [s.name for s in summaries] == ["lao", "lao_2"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # two different runs: nothing said
+        study_from_dicom([runs["lao"][0], runs["rao"][0]], tmp_path / "two", frame=1)

@@ -205,6 +205,8 @@ class XAHeader:
         The transfer syntax's name.
     photometric : str
         Photometric Interpretation (0028,0004).
+    sop_instance_uid : str
+        SOP Instance UID (0008,0018): the image's identity ("" when the file has none).
     """
 
     path: Path
@@ -220,6 +222,7 @@ class XAHeader:
     frame_times_ms: Optional[tuple[float, ...]]
     transfer_syntax: str
     photometric: str
+    sop_instance_uid: str = ""
 
     @property
     def varying_geometry(self) -> bool:
@@ -788,6 +791,7 @@ def read_xa_header(path: PathLike) -> XAHeader:
         end_diastolic_frames=end_diastolic, ecg_source=ecg_source,
         frame_times_ms=None if times is None else tuple(float(t) for t in times),
         transfer_syntax=_transfer_syntax(ds), photometric=str(ds.get("PhotometricInterpretation", "") or ""),
+        sop_instance_uid=str(ds.get("SOPInstanceUID", "") or ""),
     )
 
 

@@ -981,8 +981,14 @@ def study_from_dicom(
     taken: set[str] = set()
     document: dict[str, Any] = {"angiohull": FORMAT_VERSION, "views": []}
     summaries: list[DicomViewSummary] = []
+    seen_images: dict[str, Path] = {}  # SOP Instance UID -> the first file that holds it
     for path in files:
         header = dicom.read_xa_header(path)
+        if header.sop_instance_uid and header.sop_instance_uid in seen_images:
+            warnings.warn(f"{path}: the same image as {seen_images[header.sop_instance_uid]} (SOP Instance UID "
+                          f"{header.sop_instance_uid}): both become views, which look along one line; give each run "
+                          f"once", InputWarning, stacklevel=2)
+        seen_images.setdefault(header.sop_instance_uid, path)
         stem = _unique(path.stem if path.suffix.lower() in (".dcm", ".dicom") else path.name, taken)
         if copy:
             target = folder / "dicom" / f"{stem}.dcm"
