@@ -357,3 +357,16 @@ def test_real_ge_phantom_headers_and_pixels(ge_phantom_dir, name):
     assert frames.shape == (n, 512, 512) and frames.dtype == np.uint8
     assert 60 < frames.mean() < 140  # a bright field, not an undecoded buffer
     np.testing.assert_array_equal(read_xa_frame(path, n - 1, header), frames[-1])
+
+
+def test_a_real_run_cut_short_is_called_truncated(ge_phantom_dir, tmp_path):
+    """A copy that ends early (a transfer cut short) loses its compressed frames' end: pydicom stops
+    there with a warning and no error, and the pixel data was then said to be missing."""
+    data = (ge_phantom_dir / "IM2.dcm").read_bytes()
+    cut = tmp_path / "cut.dcm"
+    cut.write_bytes(data[:len(data) * 7 // 10])
+    with pytest.warns(DicomGeometryWarning, match="FieldOfViewDimensions"):  # (IM2 has no ImagerPixelSpacing)
+        header = read_xa_header(cut)  # the header is whole: dicom-info still reads it
+    with pytest.raises(DicomError, match=r"cut\.dcm: the file ends early \(pydicom: End of file reached before "
+                                         r"delimiter \(FFFE,E0DD\)\): it is truncated; copy it again"):
+        read_xa_frames(cut, header)

@@ -46,6 +46,7 @@ Lossless SV1 of most cardiac archives).
 from __future__ import annotations
 
 import math
+import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -384,6 +385,11 @@ def _read_dataset(path: Path, *, pixels: bool, caught: Optional[list] = None) ->
             raise DicomError(f"{path}: is not a DICOM file ({exc}); expected a DICOM Part 10 file of an X-ray angiogram") from None
         except (OSError, EOFError, ValueError, KeyError, TypeError, NotImplementedError) as exc:
             raise DicomError(f"{path}: cannot read as DICOM ({type(exc).__name__}: {exc}); the file may be truncated or damaged") from None
+    ended = next((str(w.message) for w in recorded if "end of file" in str(w.message).lower()), None)
+    if ended is not None:  # pydicom stops quietly where a cut-short file ends (what follows is simply missing)
+        said = re.sub(r"\s*found in file .*$", "", ended)
+        raise DicomError(f"{path}: the file ends early (pydicom: {said}): it is truncated; copy it again from its "
+                         f"source")
     if caught is not None:
         caught.extend(recorded)
     return ds
