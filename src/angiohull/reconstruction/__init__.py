@@ -262,9 +262,11 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     projections, masks = _as_list(projections, "projections"), _as_list(masks, "masks")
     if progress is not None and not callable(progress):
         raise ReconstructionError(f"progress must be a function of one str (or None), got {type(progress).__name__}")
-    if view_names is not None and (isinstance(view_names, (str, bytes)) or
-                                   not all(isinstance(name, str) for name in view_names)):
-        raise ReconstructionError(f"view_names must be a sequence of str, one per view, got {view_names!r}")
+    if view_names is not None:
+        names_given = view_names if isinstance(view_names, (str, bytes)) else list(view_names)
+        if isinstance(names_given, (str, bytes)) or not all(isinstance(name, str) for name in names_given):
+            raise ReconstructionError(f"view_names must be a sequence of str, one per view, got {view_names!r}")
+        view_names = names_given
     checked_masks, names = _check_inputs(projections, masks, view_names)
     method = options.chosen_method(method, preset, min_views, tree)
     preset = "paper" if preset is None else preset
