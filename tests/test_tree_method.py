@@ -1067,6 +1067,8 @@ def test_the_report_of_a_tree_reconstruction_names_its_pairs_prunings_and_stages
                  "--no-centerlines"]) == 0
     report = json.loads((out / "report.json").read_text())
     block = report["tree_method"]
+    from plyfile import PlyData  # the points file says what its points are (not "visual hull")
+    assert "angiohull tree method: lattice points inside the fitted tubes" in PlyData.read(str(out / "vessel.ply")).comments
     # the progress line gives the time the tree took (the method's tree stage; it read 0.000 s before)
     [line] = [line for line in capsys.readouterr().err.splitlines() if "] vessel tree:" in line]
     assert line.endswith(f"({report['timings_s']['tree_tree']:.3f} s)") and report["timings_s"]["tree_tree"] > 0

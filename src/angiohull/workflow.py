@@ -439,7 +439,8 @@ def write_outputs(out_dir: Path, study: Study, result: ReconstructionResult, rep
         names = {"vessel": "vessel.ply", "report": "report.json"}
         mesh = None
         write_points_ply(staging / names["vessel"], result.vessel_points_mm,
-                         comment="angiohull visual hull (kept lattice points)")
+                         comment="angiohull visual hull (kept lattice points)" if result.method == "hull" else
+                         "angiohull tree method: lattice points inside the fitted tubes")
         if result.centerline_points_mm is not None:
             names["centerlines"] = "centerlines.ply"
             write_points_ply(staging / names["centerlines"], result.centerline_points_mm,
