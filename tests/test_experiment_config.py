@@ -95,6 +95,16 @@ def test_bad_configs_are_rejected_naming_the_field(tmp_path, base, field, value,
     assert expected in str(info.value), str(info.value)
 
 
+def test_more_selections_than_distinct_subsets_get_a_warning(tmp_path):
+    from angiohull.errors import InputWarning
+
+    data = config_to_dict(load_config("n_views"))
+    data["design"].update(directions=4, n_views={"min": 1, "max": 3}, selections=5)
+    with pytest.warns(InputWarning, match=r"design: 4 directions hold only 4 distinct selections of 1 views, fewer than "
+                                          r"the 5 selections asked for \(and so for N = \[3\]\): some cases repeat"):
+        load_config(_write(tmp_path, data))
+
+
 def test_missing_keys_and_every_problem_are_reported(tmp_path):
     data = _general()
     del data["seed"]

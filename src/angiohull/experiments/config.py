@@ -354,6 +354,17 @@ class NViewsDesign(_Model):
         if self.n_views.max > self.directions:
             raise _problem("n_views.max", f"got {self.n_views.max}; expected at most directions ({self.directions}): "
                                           f"a selection takes distinct directions")
+        few = [n for n in self.n_views.values() if math.comb(self.directions, n) < self.selections]
+        if few:  # (random selections may repeat anyway; here some must)
+            import warnings
+
+            from ..errors import InputWarning
+
+            n = few[0]
+            warnings.warn(f"design: {self.directions} directions hold only {math.comb(self.directions, n)} distinct "
+                          f"selections of {n} views, fewer than the {self.selections} selections asked for"
+                          f"{f' (and so for N = {few[1:]})' if len(few) > 1 else ''}: some cases repeat one another, "
+                          f"and the statistics count them as independent", InputWarning, stacklevel=2)
         return self
 
 
