@@ -32,6 +32,7 @@ __all__ = [
     "format_clinical_angles",
     "cube_half_edge_mm",
     "angle_between_views_deg",
+    "degrees_from_one_line",
     "ImageStorage",
     "canonical_storage",
 ]
@@ -402,6 +403,13 @@ def angle_between_views_deg(first: Projection, second: Projection) -> float:
     lines (mirror images): either way the depth along it is poorly determined from the two."""
     cosine = float(np.clip(_central_ray(first) @ _central_ray(second), -1.0, 1.0))
     return float(np.degrees(np.arccos(cosine)))
+
+
+def degrees_from_one_line(first: Projection, second: Projection) -> float:
+    """How far two views' central rays are from lying along one line: their angle, or 180 less it
+    where that is smaller (degrees, 0-90; :func:`angle_between_views_deg`)."""
+    angle = angle_between_views_deg(first, second)
+    return min(angle, 180.0 - angle)
 
 
 def stack_projections(projections: Sequence[Projection]) -> np.ndarray:

@@ -29,7 +29,7 @@ from .reconstruction.calibration import (AGREEMENT_MIN_COVERAGE, Calibration, ca
                                          view_coverage)
 from . import _validation as _v
 from .errors import AngiohullError, GeometryError, OutputError, QcaError, ReconstructionError, StudyError, ViewerError
-from .geometry import Projection, angle_between_views_deg
+from .geometry import Projection, degrees_from_one_line
 from .study import Study, View
 from .tree import VesselTree
 
@@ -156,8 +156,7 @@ def view_separation_deg(projections: Sequence[Projection], names: Sequence[str])
     the angle between them, or 180 less it where that is smaller (degrees, 0-90)."""
     out = {}
     for i, j in itertools.combinations(range(len(projections)), 2):
-        angle = angle_between_views_deg(projections[i], projections[j])
-        out[f"{names[i]} / {names[j]}"] = round(min(angle, 180.0 - angle), 2)
+        out[f"{names[i]} / {names[j]}"] = round(degrees_from_one_line(projections[i], projections[j]), 2)
     return out
 
 

@@ -26,6 +26,7 @@ greater than or equal to 1``. The shipped configurations live in ``configs/`` (p
 from __future__ import annotations
 
 import math
+import warnings
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
@@ -35,7 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from pydantic_core import PydanticCustomError
 
 from .._yaml import load_yaml
-from ..errors import AngiohullError
+from ..errors import AngiohullError, InputWarning
 from .._models import find_model, short_repr
 from ..synthetic.corruptions import CORRUPTION_KINDS, CorruptionSpec, parse_corruption
 from ..synthetic.views import parse_views
@@ -356,10 +357,6 @@ class NViewsDesign(_Model):
                                           f"a selection takes distinct directions")
         few = [n for n in self.n_views.values() if math.comb(self.directions, n) < self.selections]
         if few:  # (random selections may repeat anyway; here some must)
-            import warnings
-
-            from ..errors import InputWarning
-
             n = few[0]
             warnings.warn(f"design: {self.directions} directions hold only {math.comb(self.directions, n)} distinct "
                           f"selections of {n} views, fewer than the {self.selections} selections asked for"

@@ -29,6 +29,7 @@ import platform
 import signal
 import sys
 import time
+import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -41,7 +42,7 @@ import yaml
 
 from .. import __version__, compiled
 from .._yaml import read_yaml_file
-from ..errors import AngiohullError, OutputError
+from ..errors import AngiohullError, InputWarning, OutputError
 from .cases import STATUSES, expand_cases, row_columns, run_case
 from .config import ConfigError, ExperimentConfig, config_from_dict, config_to_dict
 from .rows import RowsJournal, read_rows, rows_to_csv, write_atomic
@@ -573,10 +574,6 @@ def load_run(run_dir: str | Path) -> RunData:
     rows.sort(key=lambda r: r["case_id"])
     record: dict[str, Any] = {}
     if (run_dir / RUN_FILE).exists():
-        import warnings
-
-        from ..errors import InputWarning
-
         try:
             loaded = json.loads((run_dir / RUN_FILE).read_text(encoding="utf-8"))
             record = loaded if isinstance(loaded, dict) else {}

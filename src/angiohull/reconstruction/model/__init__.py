@@ -119,7 +119,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from ...errors import ReconstructionError
-from ...geometry import Projection
+from ...geometry import Projection, degrees_from_one_line
 from ...tree import VesselTree
 from ..cube import Lattice
 from ..vessel_tree import TREE_SETTINGS, SupportBridge, TreeBuild, TreeSettings, hull_tree, refit_tree
@@ -488,10 +488,7 @@ def _along_one_line(projections: Sequence[Projection], within_deg: float = 5.0) 
     nowhere). None otherwise."""
     from itertools import combinations
 
-    from ...geometry import angle_between_views_deg
-
-    angles = [angle_between_views_deg(a, b) for a, b in combinations(projections, 2)]
-    nearest = max(min(angle, 180.0 - angle) for angle in angles)
+    nearest = max(degrees_from_one_line(a, b) for a, b in combinations(projections, 2))
     if nearest >= within_deg:
         return None
     return (f"the views look along one line (their central rays {nearest:.1f} degrees from it at most), so the "
