@@ -81,8 +81,8 @@ def decode(value) -> np.ndarray:
 
 
 def trace(figure: dict, name_start: str) -> dict:
-    found = [t for t in figure["data"] if t["name"] == name_start] or \
-        [t for t in figure["data"] if t["name"].startswith(name_start)]
+    data = [t for t in figure["data"] if t.get("meta") != "legend entry"]  # (a layer's stand-in in the legend)
+    found = [t for t in data if t["name"] == name_start] or [t for t in data if t["name"].startswith(name_start)]
     assert len(found) == 1, [t["name"] for t in figure["data"]]
     return found[0]
 

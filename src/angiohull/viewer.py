@@ -68,6 +68,7 @@ _TRUE_CENTERLINE_COLOUR = "#222222"
 _LESION_COLOUR = "#d55e00"  # Okabe–Ito vermillion, as in the QCA figures
 _VIEW_COLOURS = ("#0072b2", "#009e73", "#cc79a7", "#e69f00", "#56b4e9", "#f0e442", "#000000")
 _RADIUS_SCALE = "Viridis"
+_RADIUS_LEGEND_COLOUR = "#21918c"  # Viridis at its middle, for the centerlines' legend entry
 # blue (near the truth) through amber to red (far): visible on white at every level; as in figure.png
 _ERROR_SCALE = [[0.0, "#2b5ba8"], [0.5, "#e6a100"], [1.0, "#b2182b"]]
 
@@ -371,7 +372,15 @@ def _scene(*, vessel_points_mm: Any, mesh_vertices_mm: Any, mesh_faces: Any, tre
                                 "cmax": high if high > low else low + 0.1, "width": 7, "showscale": True,
                                 "colorbar": {"title": {"text": "radius (mm)"}, "x": 1.0, "len": 0.45, "y": 0.75,
                                              "thickness": 14}},
-                       "name": f"centerlines: radius ({tree.n_branches} branches)", "connectgaps": False})
+                       "name": f"centerlines: radius ({tree.n_branches} branches)", "connectgaps": False,
+                       "legendgroup": "centerlines", "showlegend": False})
+        # its legend entry: plotly draws the swatch of a line coloured by an array in black, warning "Invalid
+        # color specifier" in the console; a pointless line of one colour stands in for it (same group: a click
+        # on it toggles the centerlines)
+        traces.append({"type": "scatter3d", "mode": "lines", "x": [None], "y": [None], "z": [None],
+                       "line": {"color": _RADIUS_LEGEND_COLOUR, "width": 7}, "hoverinfo": "skip",
+                       "name": f"centerlines: radius ({tree.n_branches} branches)", "legendgroup": "centerlines",
+                       "meta": "legend entry"})
         tree_points = line[np.isfinite(line[:, 0])]
         meta["tree"] = {"branches": int(tree.n_branches), "points": int(len(tree_points))}
     else:
