@@ -113,6 +113,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from itertools import combinations
 from typing import Callable, Sequence
 
 import numpy as np
@@ -345,9 +346,9 @@ class _Matchings:
                 + ", ".join(f"view {a} -> {b}: {s:.0%} matched" for (a, b), s in zip(self.pairs, shares)))
         starts, ends, r0, r1 = (np.concatenate(x) for x in zip(*tubes))
         if len(starts) == 0:
+            cause = _along_one_line([v.projection for v in self.views])
             raise ReconstructionError("the tree method found no correspondence between the views' centerlines; "
-                                      + (_along_one_line([v.projection for v in self.views]) or "check the calibration and that the "
-                                         "masks show the same vessels"))
+                                      + (cause or "check the calibration and that the masks show the same vessels"))
         own = [np.full((v.graph.n_pixels, 3), np.nan) for v in self.views]
         for a, b in self.pairs:
             own[a] = results[(a, b)][0]
@@ -486,8 +487,6 @@ def _along_one_line(projections: Sequence[Projection], within_deg: float = 5.0) 
     """Where every pair of views looks along nearly one line (within ``within_deg``): what to say
     instead of a finer lattice (the rays of paired pixels then run along each other, and meet
     nowhere). None otherwise."""
-    from itertools import combinations
-
     nearest = max(degrees_from_one_line(a, b) for a, b in combinations(projections, 2))
     if nearest >= within_deg:
         return None
