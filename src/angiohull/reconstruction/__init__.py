@@ -273,9 +273,22 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
     if method not in METHODS:
         raise ReconstructionError(f"unknown method {method!r}; choose one of {list(METHODS)}")
     if method == "tree":
-        return _reconstruct_tree(projections, checked_masks, names, resolution=resolution, threshold_px=threshold_px,
-                                 engine=engine, centerlines=centerlines, half_edge_mm=half_edge_mm, device=device,
-                                 min_views=min_views, preset=preset, progress=progress, allow_empty=allow_empty)
+        result = _reconstruct_tree(projections, checked_masks, names, resolution=resolution, threshold_px=threshold_px,
+                                   engine=engine, centerlines=centerlines, half_edge_mm=half_edge_mm, device=device,
+                                   min_views=min_views, preset=preset, progress=progress, allow_empty=allow_empty)
+    else:
+        result = _reconstruct_hull(projections, checked_masks, names, resolution=resolution,
+                                   threshold_px=threshold_px, engine=engine, centerlines=centerlines,
+                                   half_edge_mm=half_edge_mm, device=device, min_views=min_views, preset=preset,
+                                   tree=tree, allow_empty=allow_empty)
+    return result
+
+
+def _reconstruct_hull(projections: Sequence[Projection], checked_masks: list[np.ndarray], names: tuple[str, ...], *,
+                      resolution: int | None, threshold_px: float, engine: str, centerlines: bool,
+                      half_edge_mm: float | None, device: str, min_views: int | None, preset: str, tree: bool,
+                      allow_empty: bool) -> ReconstructionResult:
+    """``reconstruct(method="hull")`` (see :func:`reconstruct`)."""
     if preset not in PRESETS:
         raise ReconstructionError(f"unknown preset {preset!r}; choose one of {list(PRESETS)}")
     if resolution is None:
