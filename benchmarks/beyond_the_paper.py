@@ -82,7 +82,7 @@ def _score(projections, masks, truth, method, true_shifts=None, calibrations=Non
         projections = calibration.corrected(projections)
     # the scores read the hull only: no vessel tree (on noisy hulls its part-joining loop is what takes the time)
     points = reconstruct(projections, masks, preset=method["preset"], centerlines=False, tree=False,
-                         allow_empty=True).vessel_points_mm
+                         allow_empty=True, warn=False).vessel_points_mm
     s = scores_3d(points, truth)
     return s.dice3d, s.iou3d, s.chamfer_mm, errors, scales
 

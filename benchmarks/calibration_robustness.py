@@ -105,7 +105,8 @@ def _run(task: tuple[str, object, int]) -> dict:
         moved[view] = _moved_by_whole_pixels(masks[view], int(shift[0]), int(shift[1]))
 
     def dice(projs, ms, preset):
-        points = reconstruct(projs, ms, preset=preset, centerlines=False, tree=False, allow_empty=True).vessel_points_mm
+        points = reconstruct(projs, ms, preset=preset, centerlines=False, tree=False, allow_empty=True,
+                             warn=False).vessel_points_mm
         return scores_3d(points, truth).dice3d if len(points) else 0.0
 
     start = time.perf_counter()

@@ -85,21 +85,23 @@ def reconstruction_times(count: int, repeats: int, peer_centerline_s: float) -> 
     for row in _peer_rows(count):
         study = load_study(SHARED / "benchmarks" / "peer-synthetic" / row["case"])
         projections, masks = study.projections, study.masks
-        carved = reconstruct(projections, masks, resolution=100, centerlines=False, tree=False)
-        reconstruct(projections, masks, preset="refined", centerlines=False, tree=False)
+        carved = reconstruct(projections, masks, resolution=100, centerlines=False, tree=False, warn=False)
+        reconstruct(projections, masks, preset="refined", centerlines=False, tree=False, warn=False)
         times = _median_interleaved({
             "kdtree": lambda: reconstruct(projections, masks, resolution=100, engine="kdtree", centerlines=True,
-                                          tree=False),
-            "carving": lambda: reconstruct(projections, masks, resolution=100, centerlines=False, tree=False),
+                                          tree=False, warn=False),
+            "carving": lambda: reconstruct(projections, masks, resolution=100, centerlines=False, tree=False,
+                                           warn=False),
             "centerlines": lambda: extract_centerlines(carved.vessel_points_mm, projections, masks),
-            "whole": lambda: reconstruct(projections, masks, resolution=100, centerlines=True, tree=False),
+            "whole": lambda: reconstruct(projections, masks, resolution=100, centerlines=True, tree=False, warn=False),
             "carving_numpy": lambda: numpy_only(lambda: reconstruct(projections, masks, resolution=100,
-                                                                    centerlines=False, tree=False)),
+                                                                    centerlines=False, tree=False, warn=False)),
             "whole_numpy": lambda: numpy_only(lambda: reconstruct(projections, masks, resolution=100, centerlines=True,
-                                                                  tree=False)),
+                                                                  tree=False, warn=False)),
             "thin_ours": lambda: [guo_hall_thin(m, keep_edge=True) for m in masks],
             "thin_skimage": lambda: [thin(m) for m in masks],
-            "refined": lambda: reconstruct(projections, masks, preset="refined", centerlines=False, tree=False),
+            "refined": lambda: reconstruct(projections, masks, preset="refined", centerlines=False, tree=False,
+                                           warn=False),
         }, repeats)
         authors = float(row["peer_time_s"]) + peer_centerline_s
         out.append({"case": row["case"], **times, "peer_carving_s": float(row["peer_time_s"]),

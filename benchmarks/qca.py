@@ -277,8 +277,10 @@ def _run_tree(task: tuple[str, int, float]) -> list[dict]:
         if key not in built:
             t0 = time.perf_counter()
             try:
-                result = (reconstruct(projections, masks, preset="refined", half_edge_mm=half_edge) if method == "hull"
-                          else reconstruct(projections, masks, method="tree", centerlines=False, half_edge_mm=half_edge))
+                result = (reconstruct(projections, masks, preset="refined", half_edge_mm=half_edge, warn=False)
+                          if method == "hull" else
+                          reconstruct(projections, masks, method="tree", centerlines=False, half_edge_mm=half_edge,
+                                      warn=False))
                 built[key] = (result, None, time.perf_counter() - t0)
             except Exception as exc:  # noqa: BLE001 - a failed case is a row, not a crash
                 built[key] = (None, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)

@@ -30,7 +30,8 @@ SHARED = Path(os.environ.get("ANGIOHULL_SHARED", Path(__file__).resolve().parent
 
 
 def _score(projections, masks, ground_truth, engine):
-    result = reconstruct(projections, masks, method="hull", engine=engine, centerlines=False, allow_empty=True)
+    result = reconstruct(projections, masks, method="hull", engine=engine, centerlines=False, allow_empty=True,
+                         warn=False)
     s = scores_3d(result.vessel_points_mm, ground_truth)
     return s.dice3d, s.iou3d, s.chamfer_mm, result.time_s
 

@@ -128,7 +128,7 @@ def _methods(row: dict, projections, masks, truth_points_mm: np.ndarray, truth_t
         start = time.perf_counter()
         try:
             result = reconstruct(projections, masks, method=method, preset=preset, centerlines=False,
-                                 half_edge_mm=half_edge)
+                                 half_edge_mm=half_edge, warn=False)
         except Exception as exc:  # noqa: BLE001 - a failed case is a row
             rows.append({**out, "error": f"{type(exc).__name__}: {exc}"})
             continue
@@ -258,7 +258,7 @@ def _timing(repeats: int) -> list[dict]:
         totals, stages = [], []
         for repeat in range(repeats + 1):
             start = time.perf_counter()
-            result = reconstruct(projections, masks, method="tree", centerlines=False)
+            result = reconstruct(projections, masks, method="tree", centerlines=False, warn=False)
             if repeat:
                 totals.append(time.perf_counter() - start)
                 stages.append(result.timings_s)
@@ -284,7 +284,7 @@ def _timing_spread(trees: int) -> list[dict]:
     out = []
     for kind, seed, projections, masks in cases:
         start = time.perf_counter()
-        result = reconstruct(projections, masks, method="tree", centerlines=False)
+        result = reconstruct(projections, masks, method="tree", centerlines=False, warn=False)
         out.append({"kind": kind, "seed": seed, "total_s": time.perf_counter() - start,
                     "hypotheses": len(result.model_build.hypotheses),
                     "hypotheses_s": result.timings_s.get("tree_hypotheses", 0.0)})

@@ -84,7 +84,7 @@ def _generated(task: tuple[str, int]) -> list[dict]:
     projections, masks = [v.projection for v in case.views], [v.mask for v in case.views]
     rows = []
     for preset in PRESETS:
-        result = reconstruct(projections, masks, preset=preset, centerlines=False)
+        result = reconstruct(projections, masks, preset=preset, centerlines=False, warn=False)
         row = {"kind": kind, "index": index, "seed": seed, "tortuosity": LEVELS[index % 3],
                "preset": preset, "dice3d": scores_3d(result.vessel_points_mm, case.surface_points_mm).dice3d,
                "tree_s": result.timings_s.get("tree"), "tree_error": result.tree_error}
@@ -115,7 +115,7 @@ def _timing(cases: list[tuple[str, int]], repeats: int) -> list[dict]:
     with tempfile.TemporaryDirectory() as folder:
         for repeat in range(repeats + 1):  # the first round imports what the steps use
             for key, (projections, masks) in zip(cases, inputs):
-                result = reconstruct(projections, masks, preset="refined", centerlines=False)
+                result = reconstruct(projections, masks, preset="refined", centerlines=False, warn=False)
                 start = time.perf_counter()
                 mesh, lumen = surface_and_labels(result.tree)
                 middle = time.perf_counter()
@@ -197,7 +197,7 @@ def _xcat(task: tuple) -> dict:
     truth = VesselTree((Branch(centerline, 1.0, name="xcat"),))  # no true radii: 1 mm, unused by these scores
     start = time.perf_counter()
     result = reconstruct([views[i][0] for i in chosen], [views[i][1] for i in chosen], preset=preset,
-                         method=method, centerlines=False)
+                         method=method, centerlines=False, warn=False)
     row = {"views": list(chosen), "angles_deg": [XCAT_ALPHA_DEG[i] for i in chosen], "preset": preset,
            "method": method, "time_s": time.perf_counter() - start, "tree_error": result.tree_error}
     if result.tree is not None:
@@ -241,7 +241,7 @@ def _peer(folder: Path) -> list[dict]:
     rows = []
     for label, points in [("authors (MST of their centerline points)", theirs)] + [
             (f"angiohull {preset}", _tree_bifurcations(reconstruct(study.projections, study.masks, preset=preset,
-                                                                  centerlines=False)))
+                                                                  centerlines=False, warn=False)))
             for preset in PRESETS]:
         matched, error = match_bifurcations(truth, points, 5.0)
         nearest = (np.linalg.norm(points[:, None] - truth[None], axis=2).min(axis=1) if len(points) and len(truth)

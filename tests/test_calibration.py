@@ -229,7 +229,7 @@ def test_one_view_shifted_by_20_px_is_found_and_the_hull_restored(seed):
     assert np.linalg.norm(shifts[1:], axis=1).max() < 0.5
 
     def dice3d(projs, ms):
-        points = reconstruct(projs, ms, centerlines=False, tree=False, allow_empty=True).vessel_points_mm
+        points = reconstruct(projs, ms, centerlines=False, tree=False, allow_empty=True, warn=False).vessel_points_mm
         return scores_3d(points, shifted.surface_points_mm).dice3d
 
     before = dice3d(projections, masks)

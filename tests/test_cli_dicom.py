@@ -146,8 +146,10 @@ def test_fallback_warnings_are_one_line_each_on_stderr(tmp_path, capsys):
     assert main(["reconstruct", str(tmp_path), "-o", str(tmp_path / "out"), "-k", "30", "--method", "hull",
                  "--no-figure", "-q"]) == 0
     err = capsys.readouterr().err.splitlines()
-    # the two views are one view twice: the views' angle has its own warning, one line too
-    assert len(err) == 2 and err[1].startswith("angiohull: warning: the views look along nearly one line (degrees from "
+    # the two views are one view twice: the views' angle has its own warning, one line too; the phantom runs
+    # off this small detector, which the two-view edge warning says (one line)
+    assert len(err) == 3 and err[1].startswith("angiohull: warning: the views look along nearly one line (degrees from "
                                                "it: a / b 0; under 25 for every pair)")
+    assert err[2].startswith("angiohull: warning: vessel runs off the image's edge in a in ")
     assert err[:1] == [f"angiohull: warning: {tmp_path / 'fov.dcm'}: ImagerPixelSpacing (0018,1164) is missing; assumed 0.5 x 0.5 mm "
                        "from FieldOfViewDimensions (0018,1149) = [100, 100] mm over 200 x 200 pixels"]

@@ -79,6 +79,6 @@ def test_a_mirrored_primary_angle_would_not_reconstruct(xa_files, in_memory, pha
                         sid=SID, sod=SOD, spacing=SPACING)
         views.append(read_xa_view(path))
     wrong = reconstruct([v.carm.projection() for v in views], [v.image < 120 for v in views], resolution=100,
-                        centerlines=False, tree=False, allow_empty=True)
+                        centerlines=False, tree=False, allow_empty=True, warn=False)
     truth = phantom.surface_points_mm(0.5)
     assert scores_3d(wrong.vessel_points_mm, truth).dice3d < 0.5 * scores_3d(expected.vessel_points_mm, truth).dice3d

@@ -100,9 +100,10 @@ def test_mask_lookup_matches_brute_force_distances():
 
 def test_auto_engine_runs_the_fastest_exact_engine_and_says_so():
     projections, masks = random_case(11)
-    result = reconstruct(projections, masks, resolution=40, centerlines=False, tree=False)
+    result = reconstruct(projections, masks, resolution=40, centerlines=False, tree=False, warn=False)
     assert result.engine == "octree"
-    reference = reconstruct(projections, masks, resolution=40, centerlines=False, tree=False, engine="kdtree")
+    reference = reconstruct(projections, masks, resolution=40, centerlines=False, tree=False, engine="kdtree",
+                            warn=False)
     np.testing.assert_array_equal(result.vessel_points_mm, reference.vessel_points_mm)
     assert sorted(result.view_order) == [0, 1, 2]
 

@@ -124,7 +124,7 @@ def test_points_behind_the_source_are_dropped():
     k = np.array([[50.0, 0, 32], [0, 50.0, 32], [0, 0, 1]])
     p = Projection(k @ np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0]]), (64, 64))  # source at origin
     mask = np.ones((64, 64), bool)
-    result = reconstruct([p], [mask], resolution=11, half_edge_mm=10.0, centerlines=False, tree=False)
+    result = reconstruct([p], [mask], resolution=11, half_edge_mm=10.0, centerlines=False, tree=False, warn=False)
     pts = result.vessel_points_mm
     assert len(pts) > 0 and np.all(pts[:, 2] > 0)
     lattice = result.lattice.points()
@@ -137,7 +137,7 @@ def test_points_behind_the_source_are_dropped():
 def test_cube_of_interest_from_the_views():
     projections = [view(0, 0, shape=(100, 120), spacing=0.5), view(90, 0, shape=(128, 128), spacing=0.5)]
     masks = [np.ones(p.image_shape, bool) for p in projections]
-    result = reconstruct(projections, masks, resolution=5, centerlines=False, tree=False)
+    result = reconstruct(projections, masks, resolution=5, centerlines=False, tree=False, warn=False)
     assert result.lattice.half_edge_mm == pytest.approx(cube_half_edge_mm(projections))
     assert result.lattice.half_edge_mm == pytest.approx(SOD * 128 * 0.5 / (2 * SID))
     assert result.lattice_spacing_mm == pytest.approx(2 * result.lattice.half_edge_mm / 4)

@@ -109,7 +109,7 @@ def test_a_view_that_sees_the_vessel_overlapped_does_not_erase_it():
     band = masks[0].copy()
     band[rows.max() + 1: rows.max() + 1 + 3 * len(rows), :] = masks[0][rows.min()]  # the neighbour, below
     masks[0] = band
-    carved = reconstruct(projections, masks, resolution=256, centerlines=False, tree=False)
+    carved = reconstruct(projections, masks, resolution=256, centerlines=False, tree=False, warn=False)
     points = carved.vessel_points_mm
     deep = points[(np.abs(points[:, 0]) < 25)
                   & (_axis_distance(points, start, end) < radius - 2 * carved.lattice_spacing_mm)]
@@ -214,8 +214,8 @@ def test_refined_points_do_not_depend_on_how_the_images_are_stored(seed, monkeyp
     stored_projections = [s.apply(p) for s, p in zip(storages, projections)]
     stored_masks = [s.apply_image(m) for s, m in zip(storages, masks)]
     kwargs = dict(resolution=96, preset="refined", tree=False, centerlines=False, allow_empty=True)
-    one = reconstruct(projections, masks, **kwargs).vessel_points_mm
-    other = reconstruct(stored_projections, stored_masks, **kwargs).vessel_points_mm
+    one = reconstruct(projections, masks, **kwargs, warn=False).vessel_points_mm
+    other = reconstruct(stored_projections, stored_masks, **kwargs, warn=False).vessel_points_mm
     assert len(one) > 0
     assert {tuple(p) for p in np.round(one, 6)} == {tuple(p) for p in np.round(other, 6)}
 

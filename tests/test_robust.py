@@ -40,11 +40,12 @@ def test_k_of_n_engines_equal_the_brute_force_oracle(seed, n_views, need):
 
 def test_all_views_is_the_papers_rule_and_more_tolerance_keeps_more():
     projections, masks = random_case(7, n_views=4)
-    paper = reconstruct(projections, masks, resolution=30, centerlines=False, tree=False, allow_empty=True)
-    same = reconstruct(projections, masks, resolution=30, centerlines=False, tree=False, allow_empty=True, min_views=4)
+    paper = reconstruct(projections, masks, resolution=30, centerlines=False, tree=False, allow_empty=True, warn=False)
+    same = reconstruct(projections, masks, resolution=30, centerlines=False, tree=False, allow_empty=True, min_views=4,
+                       warn=False)
     assert np.array_equal(paper.vessel_points_mm, same.vessel_points_mm) and same.min_views is None
     sizes = [len(reconstruct(projections, masks, resolution=30, centerlines=False, tree=False, allow_empty=True,
-                             min_views=k).vessel_points_mm) for k in (4, 3, 2, 1)]
+                             min_views=k, warn=False).vessel_points_mm) for k in (4, 3, 2, 1)]
     assert sizes == sorted(sizes) and sizes[0] < sizes[-1]
 
 
@@ -72,7 +73,7 @@ def test_two_of_three_survives_a_missing_segment():
 def test_bad_min_views(value):
     projections, masks = random_case(0)
     with pytest.raises(ReconstructionError, match="min_views"):
-        reconstruct(projections, masks, resolution=10, min_views=value)
+        reconstruct(projections, masks, resolution=10, min_views=value, warn=False)
 
 
 def test_empty_k_of_n_hull_says_so():

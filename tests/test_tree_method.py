@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy import ndimage as ndi
 
-from angiohull.errors import ReconstructionError
+from angiohull.errors import AgreementWarning, InputWarning, ReconstructionError
 from angiohull.geometry import CArmGeometry, parse_clinical_angles
 from angiohull.metrics.tree import distance_to_centerline, tree_scores
 from angiohull.reconstruction import Lattice, reconstruct
@@ -780,7 +780,9 @@ def test_a_vessel_that_leaves_the_image_is_rebuilt_as_far_as_both_views_see_it()
     projections = _views()
     truth = VesselTree((Branch(_line((-20, 0, -10), (110, 10, 20)), 1.4, name="long"),))
     masks = _masks(truth, projections)
-    result = reconstruct(projections, masks, method="tree", centerlines=False)
+    with pytest.warns(InputWarning, match=r"vessel runs off the image's edge in view0 in 1 place.*view1 in 1 place"), \
+            pytest.warns(AgreementWarning, match=r"vessel runs off the image's edge in view0 \(12 pixels\), view1"):
+        result = reconstruct(projections, masks, method="tree", centerlines=False)
     # the part of the true axis inside both images, more than 3 mm from where it leaves
     axis = truth.root.points_mm
     seen = np.ones(len(axis), dtype=bool)
@@ -803,7 +805,10 @@ def test_a_vessel_that_leaves_one_image_only_is_rebuilt_where_both_see_it_and_no
     axis = truth.root.points_mm
     inside = [np.all((p.project(axis) >= 0) & (p.project(axis) <= 511), axis=1) for p in projections]
     assert inside[1 - leaves].all() and 0.6 < inside[leaves].mean() < 0.9
-    result = reconstruct(projections, _masks(truth, projections), method="tree", centerlines=False)
+    with pytest.warns(InputWarning, match=rf"vessel runs off the image's edge in view{leaves} in 1 place \(u, v px"), \
+            pytest.warns(AgreementWarning, match=rf"the views disagree \(view{1 - leaves}\).*vessel runs off the "
+                                                 rf"image's edge in view{leaves} \(12 pixels\)"):
+        result = reconstruct(projections, _masks(truth, projections), method="tree", centerlines=False)
     distance, _, _, _ = distance_to_centerline(axis[inside[leaves]], result.tree)
     assert np.mean(distance < 1.0) >= 0.95  # measured 0.99 and 1.00
     # the part only one view shows has no partner: no tree point is put anywhere off the true axis
@@ -885,11 +890,11 @@ def test_specks_go_before_the_tree_method_reads_the_masks():
         kept = without_small_components(salted, MODEL_SETTINGS.speck_px)
         pieces = ndi.label(salted, structure=np.ones((3, 3), dtype=bool))[0]
         assert set(np.unique(pieces[kept])) == set(np.unique(pieces[clean])) and (kept & clean).sum() == clean.sum()
-    result = reconstruct(projections, noisy, method="tree", centerlines=False)
+    result = reconstruct(projections, noisy, method="tree", centerlines=False, warn=False)
     s = tree_scores(result.tree, _y()).as_dict()
     assert s["branch_recall"] == 1.0 and s["centerline_mean_mm"] < 0.3  # as the clean Y's (measured 0.045 clean)
     with pytest.raises(ReconstructionError, match="no piece of 20 pixels or more"):
-        reconstruct(projections, [masks[0], rng.random(masks[1].shape) < 0.01])
+        reconstruct(projections, [masks[0], rng.random(masks[1].shape) < 0.01], warn=False)
 
 
 def test_three_views_with_salt_are_read_without_the_specks():
@@ -906,10 +911,10 @@ def test_three_views_with_salt_are_read_without_the_specks():
     masks = _masks(_y(), projections)
     rng = np.random.default_rng(6)
     noisy = [m | (rng.random(m.shape) < 0.05) for m in masks]
-    clean = tree_scores(reconstruct(projections, masks, centerlines=False).tree, _y()).as_dict()
-    result = reconstruct(projections, noisy, centerlines=False)
+    clean = tree_scores(reconstruct(projections, masks, centerlines=False, warn=False).tree, _y()).as_dict()
+    result = reconstruct(projections, noisy, centerlines=False, warn=False)
     bare = reconstruct(projections, [without_small_components(m, MODEL_SETTINGS.speck_px) for m in noisy],
-                       centerlines=False)
+                       centerlines=False, warn=False)
     np.testing.assert_array_equal(result.vessel_points_mm, bare.vessel_points_mm)
     salted = tree_scores(result.tree, _y()).as_dict()
     assert salted["branch_recall"] == clean["branch_recall"] == 1.0
@@ -1005,10 +1010,13 @@ def test_masks_that_are_not_vessel_masks_fail_at_the_hull_not_minutes_later():
     rng = np.random.default_rng(1)
     noise = [rng.random(p.image_shape) < 0.5 for p in projections]
     stages: list[str] = []
-    with pytest.raises(ReconstructionError, match=r"more than a vessel tree's 1,000,000; are the masks vessel masks\?"
-                                                  r".*method 'hull' carves the visual hull instead"):
+    with pytest.warns(InputWarning) as caught, \
+            pytest.raises(ReconstructionError, match=r"more than a vessel tree's 1,000,000; are the masks vessel masks"
+                                                     r"\?.*method 'hull' carves the visual hull instead"):
         reconstruct(projections, noise, method="tree", centerlines=False, progress=stages.append)
     assert not any(line.startswith("2D centerlines") for line in stages)
+    said = [str(w.message) for w in caught]  # the checks first: mostly vessel (and off the images' edges)
+    assert any("of the pixels are vessel; vessels cover a few percent" in line for line in said)
 
 
 def test_a_tree_method_failure_says_that_the_hull_is_there_instead():
@@ -1037,9 +1045,10 @@ def test_two_views_along_one_line_are_named_as_the_reason_no_point_is_fixed():
     so instead of pointing at the calibration (or, where pairs were made, at the lattice)."""
     projections = _views()
     masks = _masks(_y(), projections)
-    with pytest.raises(ReconstructionError, match=r"no correspondence between the views' centerlines; the views look "
-                                                  r"along one line \(their central rays 0\.0 degrees from it at most\)"
-                                                  r".*30 degrees apart"):
+    with pytest.warns(InputWarning, match=r"the views look along nearly one line \(degrees from it: view0 / view1 0;"), \
+            pytest.raises(ReconstructionError, match=r"no correspondence between the views' centerlines; the views "
+                                                     r"look along one line \(their central rays 0\.0 degrees from it "
+                                                     r"at most\).*30 degrees apart"):
         reconstruct([projections[0]] * 2, [masks[0]] * 2, method="tree", centerlines=False)
 
 

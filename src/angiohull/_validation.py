@@ -74,3 +74,21 @@ def readonly_copy(array: Any, dtype: Any = np.float64) -> np.ndarray:
     copy = np.array(array, dtype=dtype, copy=True, order="C")
     copy.setflags(write=False)
     return copy
+
+
+#: A mask with fewer rows or columns than this cannot show a vessel with background beside it.
+MIN_MASK_SIDE_PX = 4
+#: A vessel mask covering more than this share of its image is probably inverted (vessels cover a few percent).
+MAX_VESSEL_SHARE = 0.5
+
+
+def vessel_share_problem(mask: Any) -> str | None:
+    """What is wrong with a mask whose vessel covers more than :data:`MAX_VESSEL_SHARE` of its
+    pixels (probably inverted), None otherwise: the text of a warning, after the mask's name."""
+    mask = np.asarray(mask)
+    share = float(np.count_nonzero(mask)) / max(mask.size, 1)
+    if share <= MAX_VESSEL_SHARE:
+        return None
+    what = "every pixel is vessel" if share == 1.0 else f"{100.0 * share:.0f} % of the pixels are vessel"
+    return (f"{what}; vessels cover a few percent of an angiogram, so the mask is probably inverted (vessel must be "
+            f"nonzero) or not a vessel mask, and the view removes almost nothing from the hull")

@@ -332,11 +332,15 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
         agreement = dict(zip(study.names, calibration.coverage_after))
     else:
         agreement = workflow.view_agreement(study, options)
-    message = workflow.agreement_warning(agreement, calibrated=options.calibrate)
+    edges = workflow.edge_pixels(study.masks, study.names)
+    message = workflow.agreement_warning(agreement, calibrated=options.calibrate, edges=edges)
     if message:
         warnings.warn(message, AgreementWarning, stacklevel=1)
     separation = workflow.view_separation_deg(study.projections, study.names)
     message = workflow.view_angle_warning(separation) or workflow.one_view_warning(len(study.views))
+    if message:
+        warnings.warn(message, InputWarning, stacklevel=1)
+    message = workflow.edge_warning(study.masks, study.names)
     if message:
         warnings.warn(message, InputWarning, stacklevel=1)
     hint = workflow.two_view_hint(len(study.views), options.method)
@@ -344,7 +348,7 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
         progress(hint)
     what = _method_name(options.method, options.preset)
     progress(f"reconstructing {len(study.views)} views ({what}) with engine {options.engine}")
-    result = workflow.reconstruct_study(study, options, progress=progress)
+    result = workflow.reconstruct_study(study, options, progress=progress, warn=False)  # checked above
     progress(f"kept {len(result.vessel_points_mm)} of {result.lattice.n_points} lattice points "
              f"(carving {result.timings_s['carve']:.3f} s)")
     if options.tree:

@@ -720,10 +720,10 @@ def load_study(folder: Union[str, Path]) -> Study:
                  ground_truth_tree=tree, ground_truth_tree_path=tree_path)
 
 
-#: A mask with fewer rows or columns than this cannot show a vessel with background beside it.
-MIN_MASK_SIDE_PX = 4
-#: A vessel mask covering more than this share of its image is probably inverted (vessels cover a few percent).
-MAX_VESSEL_SHARE = 0.5
+MIN_MASK_SIDE_PX = _v.MIN_MASK_SIDE_PX
+"""A mask with fewer rows or columns than this cannot show a vessel with background beside it."""
+MAX_VESSEL_SHARE = _v.MAX_VESSEL_SHARE
+"""A vessel mask covering more than this share of its image is probably inverted (vessels cover a few percent)."""
 
 
 def _warn_if_suspicious(yaml_path: Path, field: str, view: View) -> None:
@@ -734,12 +734,9 @@ def _warn_if_suspicious(yaml_path: Path, field: str, view: View) -> None:
     if min(rows, cols) < MIN_MASK_SIDE_PX:
         warnings.warn(f"{where}: the mask is only {rows} x {cols} pixels, too small to show a vessel and the background "
                       f"beside it; is it the right file?", InputWarning, stacklevel=3)
-    share = float(np.count_nonzero(view.mask)) / view.mask.size
-    if share > MAX_VESSEL_SHARE:
-        what = "every pixel is vessel" if share == 1.0 else f"{100.0 * share:.0f} % of the pixels are vessel"
-        warnings.warn(f"{where}: {what}; vessels cover a few percent of an angiogram, so the mask is probably inverted "
-                      f"(vessel must be nonzero) or not a vessel mask, and the view removes almost nothing from the hull",
-                      InputWarning, stacklevel=3)
+    problem = _v.vessel_share_problem(view.mask)
+    if problem:
+        warnings.warn(f"{where}: {problem}", InputWarning, stacklevel=3)
 
 
 # -- saving ---------------------------------------------------------------------------------

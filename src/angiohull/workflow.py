@@ -7,7 +7,6 @@ This sits above reconstruction and metrics (it reads nothing itself: the caller 
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
 import os
@@ -27,9 +26,11 @@ from .rasterise import boundary_cells, cell_silhouette
 from .reconstruction import DEFAULT_THRESHOLD_PX, ReconstructionResult, reconstruct
 from .reconstruction.calibration import (AGREEMENT_MIN_COVERAGE, Calibration, calibrate_shifts, shift_projection,
                                          view_coverage)
+from .reconstruction.checks import (MIN_VIEW_SEPARATION_DEG, agreement_warning, edge_pixels, edge_runs, edge_warning,
+                                    one_view_warning, view_angle_warning, view_separation_deg)
 from . import _validation as _v
 from .errors import AngiohullError, GeometryError, OutputError, QcaError, ReconstructionError, StudyError, ViewerError
-from .geometry import Projection, degrees_from_one_line
+from .geometry import Projection
 from .study import Study, View
 from .tree import VesselTree
 
@@ -39,6 +40,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_agreement", "agreement_warning",
            "view_separation_deg", "view_angle_warning", "MIN_VIEW_SEPARATION_DEG", "two_view_hint", "one_view_warning",
+           "edge_warning", "edge_runs", "edge_pixels", "AGREEMENT_MIN_COVERAGE",
            "ambiguity_warning", "view_silhouettes", "evaluation_scores", "tree_evaluation_scores", "tree_summary",
            "build_report", "write_outputs", "ExtraOutput", "json_safe", "load_result_for_qca", "report_projections",
            "write_qca_outputs", "ResultFolder", "load_result_folder", "output_folder", "check_output_folder",
@@ -86,14 +88,15 @@ class ReconstructOptions:
 
 
 def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOptions(), *,
-                      progress: Callable[[str], None] | None = None) -> ReconstructionResult:
+                      progress: Callable[[str], None] | None = None, warn: bool = True) -> ReconstructionResult:
     """Reconstruct a loaded study with the given options (views in the study's order); ``progress``
-    gets a line per stage of the tree method."""
+    gets a line per stage of the tree method; ``warn``: the input checks of :func:`reconstruct`
+    (the command line runs its own, calibration included)."""
     return reconstruct(
         study.projections, study.masks,
         resolution=options.resolution, threshold_px=options.threshold_px, engine=options.engine,
         centerlines=options.centerlines, view_names=study.names, device=options.device, min_views=options.min_views,
-        preset=options.preset, tree=options.tree, method=options.method, progress=progress,
+        preset=options.preset, tree=options.tree, method=options.method, progress=progress, warn=warn,
     )
 
 
@@ -128,60 +131,6 @@ def view_agreement(study: Study, options: ReconstructOptions = ReconstructOption
     """Per view name, the fraction of its mask the paper's hull of all views covers
     (:func:`~angiohull.reconstruction.calibration.view_coverage`): 1 when the views agree."""
     return dict(zip(study.names, view_coverage(study.projections, study.masks, threshold_px=options.threshold_px)))
-
-
-def agreement_warning(coverage: dict[str, float], *, calibrated: bool) -> str | None:
-    """The warning to give when some view's coverage is below AGREEMENT_MIN_COVERAGE (None if none)."""
-    poor = [name for name, value in coverage.items() if value < AGREEMENT_MIN_COVERAGE]
-    if not poor or not any(coverage.values()):  # none, or an empty hull, which the reconstruction reports itself
-        return None
-    listed = ", ".join(f"{name} {100 * value:.0f} %" for name, value in coverage.items())
-    which = ", ".join(poor)
-    if calibrated:
-        return (f"the views still disagree after calibration ({which}): the hull of all views covers {listed} of each "
-                f"mask (below {100 * AGREEMENT_MIN_COVERAGE:.0f} % means disagreement); the result is unreliable: check "
-                f"that the masks show the same vessels, that no view's image cuts off vessel the others show (it is "
-                f"lost), and the geometry (report.json: calibration)")
-    return (f"the views disagree ({which}): the hull of all views covers {listed} of each mask (below "
-            f"{100 * AGREEMENT_MIN_COVERAGE:.0f} % means disagreement); the geometry may be off by pixels (try "
-            f"--calibrate), or the masks may not show the same vessels")
-
-
-MIN_VIEW_SEPARATION_DEG = 25.0
-"""Views whose central rays are closer than this to parallel (or to opposite) give a warning."""
-
-
-def view_separation_deg(projections: Sequence[Projection], names: Sequence[str]) -> dict[str, float]:
-    """Per pair of views ("a / b"), how far their central rays are from lying along one line:
-    the angle between them, or 180 less it where that is smaller (degrees, 0-90)."""
-    out = {}
-    for i, j in itertools.combinations(range(len(projections)), 2):
-        out[f"{names[i]} / {names[j]}"] = round(degrees_from_one_line(projections[i], projections[j]), 2)
-    return out
-
-
-def view_angle_warning(separation_deg: dict[str, float]) -> str | None:
-    """The warning to give when no pair of views is MIN_VIEW_SEPARATION_DEG apart (None when one is,
-    or with a single view)."""
-    if not separation_deg or max(separation_deg.values()) >= MIN_VIEW_SEPARATION_DEG:
-        return None
-    pairs = list(separation_deg.items())
-    listed = ", ".join(f"{pair} {value:.0f}" for pair, value in pairs[:6])
-    listed += f" and {len(pairs) - 6} more pairs" if len(pairs) > 6 else ""
-    return (f"the views look along nearly one line (degrees from it: {listed}; under "
-            f"{MIN_VIEW_SEPARATION_DEG:.0f} for every pair): the depth along it is poorly determined, and the result "
-            f"with it (docs/tree-method.md measures how much); use views 30 degrees apart or more, and not nearly "
-            f"opposite (report.json: view_separation_deg)")
-
-
-def one_view_warning(n_views: int) -> str | None:
-    """The warning to give for a single view (None otherwise): its visual hull is its whole cone of
-    rays, so the points say where the vessels may lie along each ray, not where they are."""
-    if n_views != 1:
-        return None
-    return ("one view: the visual hull is the view's whole cone of rays through the mask, which holds no depth "
-            "(the points say where along each ray a vessel may lie, not where it is; no vessel tree is built); "
-            "reconstruct from two views or more, 30 degrees apart or more")
 
 
 def two_view_hint(n_views: int, method: str) -> str | None:

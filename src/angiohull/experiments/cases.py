@@ -416,7 +416,7 @@ def _score_case(params: dict[str, Any], row: dict[str, Any]) -> None:
                          threshold_px=options["threshold_px"], engine=options["engine"], centerlines=False,
                          view_names=inputs.names, allow_empty=True, preset=options.get("preset", "paper"),
                          min_views=options.get("min_views"), tree=bool(tree_metrics),
-                         method=options.get("method", "hull"))
+                         method=options.get("method", "hull"), warn=False)  # the design means its views
     points = result.vessel_points_mm
     metrics = params["metrics"]
     row["n_points"] = int(len(points))

@@ -1,0 +1,172 @@
+"""What a reconstruction's inputs say about its result before it runs (arrays and projections in,
+warning texts out): one view, views that look along nearly one line, views that disagree, masks
+that are mostly vessel, and, with two views, vessel cut off by an image's edge.
+
+Each check returns the text of its warning, or None when it does not apply. :func:`input_warnings`
+runs them all; :func:`angiohull.reconstruction.reconstruct` gives them as Python warnings
+(``warn=True``, its default) and the command line as ``angiohull: warning:`` lines.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Sequence
+
+import numpy as np
+
+from .. import _validation as _v
+from ..errors import AgreementWarning, InputWarning
+from ..geometry import Projection, degrees_from_one_line
+from .calibration import AGREEMENT_MIN_COVERAGE, view_coverage
+
+__all__ = ["MIN_VIEW_SEPARATION_DEG", "EDGE_MIN_RUN_PX", "view_separation_deg", "view_angle_warning",
+           "one_view_warning", "agreement_warning", "vessel_share_warning", "edge_runs", "edge_pixels", "edge_warning",
+           "input_warnings"]
+
+MIN_VIEW_SEPARATION_DEG = 25.0
+"""Views whose central rays are closer than this to parallel (or to opposite) give a warning."""
+
+EDGE_MIN_RUN_PX = 3
+"""A run of at least this many vessel pixels along an image's border is a vessel cut off by the edge
+(shorter runs are a vessel's rim grazing it)."""
+
+_CALIBRATE = "the command line's --calibrate, angiohull.workflow.calibrate_study in Python"
+
+
+def view_separation_deg(projections: Sequence[Projection], names: Sequence[str]) -> dict[str, float]:
+    """Per pair of views ("a / b"), how far their central rays are from lying along one line:
+    the angle between them, or 180 less it where that is smaller (degrees, 0-90)."""
+    out = {}
+    for i, j in itertools.combinations(range(len(projections)), 2):
+        out[f"{names[i]} / {names[j]}"] = round(degrees_from_one_line(projections[i], projections[j]), 2)
+    return out
+
+
+def view_angle_warning(separation_deg: dict[str, float]) -> str | None:
+    """The warning to give when no pair of views is MIN_VIEW_SEPARATION_DEG apart (None when one is,
+    or with a single view)."""
+    if not separation_deg or max(separation_deg.values()) >= MIN_VIEW_SEPARATION_DEG:
+        return None
+    pairs = list(separation_deg.items())
+    listed = ", ".join(f"{pair} {value:.0f}" for pair, value in pairs[:6])
+    listed += f" and {len(pairs) - 6} more pairs" if len(pairs) > 6 else ""
+    return (f"the views look along nearly one line (degrees from it: {listed}; under "
+            f"{MIN_VIEW_SEPARATION_DEG:.0f} for every pair): the depth along it is poorly determined, and the result "
+            f"with it (docs/tree-method.md measures how much); use views 30 degrees apart or more, and not nearly "
+            f"opposite (report.json: view_separation_deg)")
+
+
+def one_view_warning(n_views: int) -> str | None:
+    """The warning to give for a single view (None otherwise): its visual hull is its whole cone of
+    rays, so the points say where the vessels may lie along each ray, not where they are."""
+    if n_views != 1:
+        return None
+    return ("one view: the visual hull is the view's whole cone of rays through the mask, which holds no depth "
+            "(the points say where along each ray a vessel may lie, not where it is; no vessel tree is built); "
+            "reconstruct from two views or more, 30 degrees apart or more")
+
+
+def edge_runs(mask: np.ndarray, min_run_px: int = EDGE_MIN_RUN_PX) -> list[tuple[float, float, int]]:
+    """The places where the mask's vessel meets its image's border: per run of at least
+    ``min_run_px`` vessel pixels along one side, ``(u, v, length)``, the run's middle in pixel
+    coordinates (u column, v row) and its length in pixels; in the order top, bottom, left, right."""
+    mask = np.asarray(mask, dtype=bool)
+    rows, cols = mask.shape
+    sides = ((mask[0, :], lambda i: (i, 0.0)), (mask[-1, :], lambda i: (i, rows - 1.0)),
+             (mask[:, 0], lambda i: (0.0, i)), (mask[:, -1], lambda i: (cols - 1.0, i)))
+    runs = []
+    for line, place in sides:
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], line.astype(np.int8), [0]))))
+        for first, end in zip(edges[::2], edges[1::2]):
+            if end - first >= min_run_px:
+                runs.append((*place((first + end - 1) / 2.0), int(end - first)))
+    return runs
+
+
+def edge_pixels(masks: Sequence[np.ndarray], names: Sequence[str]) -> dict[str, int]:
+    """Per view name, its mask's vessel pixels in runs along its image's border (:func:`edge_runs`;
+    0 for a mask that is mostly vessel, which has a warning of its own)."""
+    return {name: 0 if _v.vessel_share_problem(mask) else sum(n for _, _, n in edge_runs(mask))
+            for mask, name in zip(masks, names)}
+
+
+def edge_warning(masks: Sequence[np.ndarray], names: Sequence[str]) -> str | None:
+    """With two views, the warning to give when a view's vessel is cut off by its image's edge
+    (None otherwise): the vessel beyond the edge is seen by the other view alone, which cannot place
+    it in depth; the hull carves it away, and the tree method may pair the other view's part of it
+    with another vessel (a branch where there is none). With three views or more the hull keeps
+    what every view sees and the agreement check measures what is lost."""
+    if len(masks) != 2:
+        return None
+    cut = []
+    for mask, name in zip(masks, names):
+        if _v.vessel_share_problem(mask):  # a mask that is mostly vessel has its own warning
+            continue
+        runs = edge_runs(mask)
+        if runs:
+            places = ", ".join(f"({u:.0f}, {v:.0f})" for u, v, _ in runs[:4])
+            places += f" and {len(runs) - 4} more" if len(runs) > 4 else ""
+            cut.append(f"{name} in {len(runs)} place{'s' if len(runs) > 1 else ''} "
+                       f"(u, v px: {places}; {sum(n for _, _, n in runs)} pixels)")
+    if not cut:
+        return None
+    return (f"vessel runs off the image's edge in {'; '.join(cut)}: beyond an edge it is seen by the other view "
+            f"alone, which cannot place it in depth; the reconstruction leaves it out, and the tree method may pair "
+            f"the other view's part of it with another vessel (a branch where there is none): check the tree near "
+            f"those places, or add a view that shows them")
+
+
+def agreement_warning(coverage: dict[str, float], *, calibrated: bool, calibrate: str = "--calibrate",
+                      edges: dict[str, int] | None = None) -> str | None:
+    """The warning to give when some view's coverage is below AGREEMENT_MIN_COVERAGE (None if none).
+    ``calibrate`` names the calibration to try; ``edges`` (view name -> vessel pixels on its image's
+    border), where given, names the views whose image cuts off vessel (a cause of disagreement
+    that no calibration corrects)."""
+    poor = [name for name, value in coverage.items() if value < AGREEMENT_MIN_COVERAGE]
+    if not poor or not any(coverage.values()):  # none, or an empty hull, which the reconstruction reports itself
+        return None
+    listed = ", ".join(f"{name} {100 * value:.0f} %" for name, value in coverage.items())
+    which = ", ".join(poor)
+    cut = [f"{name} ({count} pixels)" for name, count in (edges or {}).items() if count]
+    edge_note = (f"; vessel runs off the image's edge in {', '.join(cut)}: what another view shows beyond it is "
+                 f"lost" if cut else "")
+    if calibrated:
+        return (f"the views still disagree after calibration ({which}): the hull of all views covers {listed} of each "
+                f"mask (below {100 * AGREEMENT_MIN_COVERAGE:.0f} % means disagreement){edge_note}; the result is "
+                f"unreliable: check that the masks show the same vessels, that no view's image cuts off vessel the "
+                f"others show (it is lost), and the geometry (report.json: calibration)")
+    return (f"the views disagree ({which}): the hull of all views covers {listed} of each mask (below "
+            f"{100 * AGREEMENT_MIN_COVERAGE:.0f} % means disagreement){edge_note}; the geometry may be off by pixels "
+            f"(try {calibrate}), or the masks may not show the same vessels")
+
+
+def vessel_share_warning(mask: np.ndarray, where: str) -> str | None:
+    """The warning to give for a mask whose vessel covers more than half its pixels (probably
+    inverted; :data:`angiohull.study.MAX_VESSEL_SHARE`), None otherwise; ``where`` says which mask."""
+    problem = _v.vessel_share_problem(mask)
+    return f"{where}: {problem}" if problem else None
+
+
+def input_warnings(projections: Sequence[Projection], masks: Sequence[np.ndarray], names: Sequence[str], *,
+                   threshold_px: float = 1.0) -> list[tuple[type[Warning], str]]:
+    """Every check of this module on checked inputs: ``(category, text)`` per warning to give, in
+    the order masks, views (one view, or their angles), agreement, edges. The agreement check
+    carves the paper's hull of all views (K = 256): 0.03-0.3 s for two 512 x 512 views."""
+    found: list[tuple[type[Warning], str]] = []
+    for mask, name in zip(masks, names):
+        message = vessel_share_warning(mask, f"view {name!r}")
+        if message:
+            found.append((InputWarning, message))
+    message = one_view_warning(len(masks)) or view_angle_warning(view_separation_deg(projections, names))
+    if message:
+        found.append((InputWarning, message))
+    if len(masks) >= 2 and all(np.any(m) for m in masks):
+        coverage = dict(zip(names, view_coverage(projections, masks, threshold_px=threshold_px)))
+        edges = edge_pixels(masks, names)
+        message = agreement_warning(coverage, calibrated=False, calibrate=_CALIBRATE, edges=edges)
+        if message:
+            found.append((AgreementWarning, message))
+    message = edge_warning(masks, names)
+    if message:
+        found.append((InputWarning, message))
+    return found
