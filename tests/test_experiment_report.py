@@ -169,6 +169,34 @@ def test_a_run_whose_configuration_was_edited_or_whose_record_is_damaged_is_repo
         assert load_run(run).record == {}
 
 
+def test_a_run_whose_rows_were_cut_short_or_lost_is_reported_with_a_warning_naming_the_file_and_line(quick_runs,
+                                                                                                     tmp_path, capsys):
+    import shutil
+
+    run, out = tmp_path / "translation", tmp_path / "out"
+    shutil.copytree(quick_runs / "translation", run)
+    rows = run / "rows.csv"
+    header, first = rows.read_text().splitlines()[:2]
+    lost = (f"angiohull: warning: {rows}: holds 0 finished case(s), but run.json recorded 3 when the run last ended: "
+            f"rows were lost (the file was cut short, replaced or edited); the report covers the 0 there are; running "
+            f"the same experiment into {run} runs the missing cases again\n")
+    cut = "is cut short (no line end: the run was stopped while writing it, or is writing it now); "
+    for text, warned in [
+            (header + "\n" + first[:25], f"{rows}: line 2 {cut}that row is ignored, and resuming the run into this "
+                                         f"folder runs its case again\n"),
+            (header[:30], f"{rows}: line 1 (the header) {cut}the file is read as holding no rows\n"),
+            (header + "\n", None)]:
+        rows.write_text(text)
+        assert main(["report", str(run), "-o", str(out)]) == 0
+        err = capsys.readouterr().err
+        assert err == (f"angiohull: warning: {warned}" if warned else "") + lost
+        assert json.loads((out / "report.json").read_text())["runs"][0]["cases_done"] == 0
+        assert "*Incomplete: 0 of 3 cases finished.*" in (out / "report.md").read_text()
+    rows.unlink()
+    assert main(["report", str(run), "-o", str(out)]) == 0
+    assert capsys.readouterr().err == lost.replace("holds 0 finished case(s)", "is missing")
+
+
 def test_figure_titles_say_what_ran_and_are_never_cut(report):
     from angiohull.experiments.figures import _wrapped
     from angiohull.experiments.report import figure_title

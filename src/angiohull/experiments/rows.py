@@ -18,12 +18,13 @@ import io
 import math
 import os
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from ..errors import AngiohullError
+from ..errors import AngiohullError, InputWarning
 
 __all__ = ["RowsJournal", "read_rows", "format_value", "parse_value", "rows_to_csv", "write_atomic",
            "INT_COLUMNS", "TEXT_COLUMNS"]
@@ -102,15 +103,23 @@ def _where_bad_byte(data: bytes, offset: int) -> str:
 
 
 def read_rows(path: str | Path, columns: Sequence[str] | None = None) -> tuple[list[str], list[dict[str, Any]]]:
-    """The header and the complete rows of a rows file (a partial last line is ignored).
+    """The header and the complete rows of a rows file (a partial last line is ignored, with a warning).
 
     Rows with a repeated ``case_id`` keep the first occurrence. With ``columns``, the header must
-    equal it (else :class:`~angiohull.errors.AngiohullError`).
+    equal it (else :class:`~angiohull.errors.AngiohullError`). A last line without its line end, the
+    one a run killed while writing it leaves, is left out with an
+    :class:`~angiohull.errors.InputWarning` that names it (:meth:`RowsJournal.open` drops it before
+    appending again, so resuming the run runs its case again).
     """
     path = Path(path)
     data = path.read_bytes()
     if data and not data.endswith(b"\n"):
         data = data[: data.rfind(b"\n") + 1]
+        line = data.count(b"\n") + 1
+        ignored = ("line 1 (the header)", "the file is read as holding no rows") if line == 1 else (
+            f"line {line}", "that row is ignored, and resuming the run into this folder runs its case again")
+        warnings.warn(f"{path}: {ignored[0]} is cut short (no line end: the run was stopped while writing it, or is "
+                      f"writing it now); {ignored[1]}", InputWarning, stacklevel=2)
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -130,7 +139,8 @@ def read_rows(path: str | Path, columns: Sequence[str] | None = None) -> tuple[l
     rows, seen = [], set()
     for number, record in enumerate(records[1:], start=2):
         if len(record) != len(header):
-            raise AngiohullError(f"{path}: line {number} has {len(record)} fields, expected {len(header)}")
+            raise AngiohullError(f"{path}: line {number} has {len(record)} fields, expected {len(header)} (one per "
+                                 f"column of the header); {_DAMAGED}")
         row = {}
         for column, cell in zip(header, record):
             try:

@@ -587,5 +587,12 @@ def load_run(run_dir: str | Path) -> RunData:
             warnings.warn(f"{stored}: edited after the rows were made (its bytes differ from those {RUN_FILE} "
                           f"recorded, config_file_sha256); the report describes the file as it is now, which may not "
                           f"be the experiment that ran", InputWarning, stacklevel=2)
+        recorded = record.get("cases_done")  # the journal's rows when the last invocation ended
+        if isinstance(recorded, int) and not isinstance(recorded, bool) and len(rows) < recorded:
+            held = f"holds {len(rows)} finished case(s)" if rows_path.exists() else "is missing"
+            warnings.warn(f"{rows_path}: {held}, but {RUN_FILE} recorded {recorded} when the run last ended: rows were "
+                          f"lost (the file was cut short, replaced or edited); the report covers the {len(rows)} there "
+                          f"are; running the same experiment into {run_dir} runs the missing cases again",
+                          InputWarning, stacklevel=2)
     total = int(record.get("cases_total", len(expand_cases(config))))
     return RunData(run_dir, config, columns, rows, record, total)
