@@ -327,6 +327,61 @@ def test_missing_decoder_plugin_says_what_to_install(tmp_path, monkeypatch):
         read_xa_frame(path, 0)
 
 
+@pytest.mark.parametrize("compressed", [False, True])
+def test_a_file_cut_inside_its_header_is_called_truncated(tmp_path, compressed):
+    """pydicom reads a file cut short in its header quietly up to its end: Rows was then said to be
+    missing (a cut at 600 bytes), or a value cut in two was 'damaged'."""
+    path = write_xa(tmp_path / "run.dcm", _frames(2), compressed=compressed)
+    data = path.read_bytes()
+    pixels = data.index(b"\xe0\x7f\x10\x00")  # (7FE0,0010), little endian
+    rows = data.index(b"\x28\x00\x10\x00US")  # Rows (0028,0010): tag, VR, 2-byte length, 2-byte value
+    study = data.index(b"\x20\x00\x0d\x00UI")  # StudyInstanceUID (0020,000D), a generated UID: its length varies
+    length = int.from_bytes(data[study + 6:study + 8], "little")
+    cut = tmp_path / "cut.dcm"
+    ends = "PixelData (7FE0,0010)): it is truncated; copy it again from its source"
+    for size, where in [
+            (140, "in or after FileMetaInformationGroupLength (0002,0000)"),  # in the file meta information
+            (study + 12, f"in the value of StudyInstanceUID (0020,000D), {length - 4} byte(s) short of its length "
+                         f"{length}"),
+            (rows + 9, "in the value of Rows (0028,0010), 1 byte(s) short of its length 2"),
+            (rows + 10, "after Rows (0028,0010)"),
+            (rows + 13, "in the element after Rows (0028,0010)"),  # a tag cut short
+            (pixels, "after PixelRepresentation (0028,0103)"),
+            (pixels + 6, "in the element after PixelRepresentation (0028,0103)")]:  # the pixel data's own tag
+        cut.write_bytes(data[:size])
+        with pytest.raises(DicomError, match=re.escape(f"{cut}: the file ends early, inside its header ({where}; "
+                                                       f"{size} bytes, before any {ends}")):
+            read_xa_header(cut)
+    cut.write_bytes(data[:600])  # (said "Rows (0028,0010) is missing")
+    with pytest.raises(DicomError, match=re.escape(f"{cut}: the file ends early, inside its header (in ")):
+        read_xa_header(cut)
+    cut.write_bytes(data[:152])  # pydicom fails where a tag's length is cut in two: still the same verdict
+    with pytest.raises(DicomError, match=re.escape(f"{cut}: the file ends early, inside its header (pydicom: error: "
+                                                   f"unpack requires a buffer of 4 bytes; 152 bytes, before any {ends}")):
+        read_xa_header(cut)
+    cut.write_bytes(data[:pixels + 12])  # the pixel data's tag whole, its value gone: the header reads
+    header = read_xa_header(cut)
+    assert header.image_shape == (40, 60)
+    with pytest.raises(DicomError, match=re.escape(str(cut))):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # pydicom may warn about the short buffer before failing
+            read_xa_frames(cut, header)
+    np.testing.assert_array_equal(read_xa_frames(path), _frames(2))  # the whole file, for the record
+
+
+def test_an_element_that_cannot_be_decoded_is_named_once(tmp_path):
+    path = write_xa(tmp_path / "run.dcm", _frames(1)[0])
+    data = path.read_bytes()
+    at = data.index(b"\x18\x00\x10\x15DS")  # PositionerPrimaryAngle: its VR damaged
+    path.write_bytes(data[:at + 4] + b"XX" + data[at + 6:])
+    with pytest.raises(DicomError, match=rf"^{re.escape(str(path))}: PositionerPrimaryAngle \(0018,1510\) is damaged "
+                                         r"and cannot be read \(NotImplementedError: Unknown Value Representation 'XX'"
+                                         r".*\); the file's header is corrupt$"):  # was inside 'cannot read as DICOM (...)'
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # pydicom may warn about the unknown VR first
+            read_xa_header(path)
+
+
 # -- the real phantom runs ---------------------------------------------------------------------
 REAL = {  # file: frames, primary, secondary, SID, SOD, spacing, spacing from the fallback
     "IM1.dcm": (14, 31.3, 0.1, 860.0, 720.0, 0.390625, True),

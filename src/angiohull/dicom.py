@@ -370,8 +370,45 @@ def _pydicom_warnings(path: Path, caught: Sequence[warnings.WarningMessage], tag
                       InputWarning, stacklevel=3)
 
 
+_PIXEL_TAGS = (0x7FE00008, 0x7FE00009, 0x7FE00010)
+"""FloatPixelData, DoubleFloatPixelData, PixelData: where pydicom's ``stop_before_pixels`` stops."""
+
+
+def _cut_short(path: Path, size: int, where: str) -> DicomError:
+    return DicomError(f"{path}: the file ends early, inside its header ({where}; {size} bytes, before any "
+                      f"{_tag('PixelData')}): it is truncated; copy it again from its source")
+
+
+def _where_header_ends(ds: Dataset, size: int) -> Optional[str]:
+    """Where a data set read to the end of its file without reaching the pixel data stops (the last
+    element read, from the file's own offsets), or None when it reads as a mislabelled transfer syntax
+    rather than a cut-short file (its first element's tag is neither a standard nor a private one)."""
+    from pydicom.datadict import dictionary_has_tag
+
+    container = ds if len(ds) else getattr(ds, "file_meta", None)
+    if container is None or not len(container):
+        return "before its first element"
+    tags = list(container.keys())
+    if container is ds and not (dictionary_has_tag(tags[0]) or tags[0].is_private):
+        return None  # e.g. Explicit VR Little Endian read as Big Endian: (0008,0016) comes out (0800,1600)
+    last = container.get_item(tags[-1])
+    name = _tag_name(tags[-1])
+    length, start = getattr(last, "length", None), getattr(last, "value_tell", None)
+    if length is None or start is None or length == 0xFFFFFFFF:
+        return f"in or after {name}"
+    end = start + length
+    if end > size:
+        return f"in the value of {name}, {end - size} byte(s) short of its length {length}"
+    return f"after {name}" if end == size else f"in the element after {name}"
+
+
 def _read_dataset(path: Path, *, pixels: bool, caught: Optional[list] = None) -> Dataset:
-    """Read a DICOM file (every element decoded); what pydicom warned about is appended to ``caught``."""
+    """Read a DICOM file (every element decoded); what pydicom warned about is appended to ``caught``.
+
+    A file that ends before its pixel data (an XA image holds them last) is a DicomError that says it
+    is truncated: pydicom reads such a file quietly up to its end, and what is cut off would only
+    show as missing tags or as values that cannot be decoded.
+    """
     if not path.exists():
         raise DicomError(f"{path}: file not found; expected an X-ray angiography DICOM file")
     if not path.is_file():
@@ -379,17 +416,34 @@ def _read_dataset(path: Path, *, pixels: bool, caught: Optional[list] = None) ->
     with warnings.catch_warnings(record=True) as recorded:
         warnings.simplefilter("always")
         try:
-            ds = pydicom.dcmread(path, stop_before_pixels=not pixels)
+            size = path.stat().st_size
+            with open(path, "rb") as handle:
+                try:
+                    ds = pydicom.dcmread(handle, stop_before_pixels=not pixels)
+                except InvalidDicomError:
+                    raise
+                except Exception as exc:  # struct.error, BytesLengthException, ...: at the end, a tag or value cut
+                    if handle.tell() < size:
+                        raise DicomError(f"{path}: cannot read as DICOM ({type(exc).__name__}: {exc}); the file may "
+                                         f"be truncated or damaged") from None
+                    raise _cut_short(path, size, f"pydicom: {type(exc).__name__}: {_condensed(str(exc), 80)}") from None
+                stopped = handle.tell()
+            ended = next((str(w.message) for w in recorded if "end of file" in str(w.message).lower()), None)
+            if ended is not None:  # pydicom warns, and returns what it read (or nothing: an empty data set)
+                said = re.sub(r"\s*found in file .*$", "", ended)
+                raise DicomError(f"{path}: the file ends early (pydicom: {said}): it is truncated; copy it again "
+                                 f"from its source")
+            reached = stopped < size if not pixels else any(tag in ds for tag in _PIXEL_TAGS)
+            where = None if reached else _where_header_ends(ds, size)
+            if where is not None:  # pydicom stops quietly where a file cut short ends: the rest is simply missing
+                raise _cut_short(path, size, where)
             _parse_all(path, ds)
+        except DicomError:
+            raise
         except InvalidDicomError as exc:
             raise DicomError(f"{path}: is not a DICOM file ({exc}); expected a DICOM Part 10 file of an X-ray angiogram") from None
         except (OSError, EOFError, ValueError, KeyError, TypeError, NotImplementedError) as exc:
             raise DicomError(f"{path}: cannot read as DICOM ({type(exc).__name__}: {exc}); the file may be truncated or damaged") from None
-    ended = next((str(w.message) for w in recorded if "end of file" in str(w.message).lower()), None)
-    if ended is not None:  # pydicom stops quietly where a cut-short file ends (what follows is simply missing)
-        said = re.sub(r"\s*found in file .*$", "", ended)
-        raise DicomError(f"{path}: the file ends early (pydicom: {said}): it is truncated; copy it again from its "
-                         f"source")
     if caught is not None:
         caught.extend(recorded)
     return ds
