@@ -95,6 +95,39 @@ def test_bad_configs_are_rejected_naming_the_field(tmp_path, base, field, value,
     assert expected in str(info.value), str(info.value)
 
 
+_SWEEP_VIEWS = "'all', or a list of view indices (whole numbers from 0; at least one), e.g. [0] or [0, 2]"
+_VIEWS = ("'perpendicular', 'clinical', clinical angle strings separated by ';' (e.g. 'RAO 30 CRA 30; LAO 60 CRA 30'), "
+          "or a list of such strings")
+
+
+@pytest.mark.parametrize("base, field, value, expected", [
+    # fields typed as unions: one line in plain words, not one per form named "tuple[constrained-int, ...]"
+    ("translation", "design.sweep.views", "some", f"design.sweep.views: got 'some' (str); expected {_SWEEP_VIEWS}"),
+    ("translation", "design.sweep.views", [-1], f"design.sweep.views: got [-1] (list); expected {_SWEEP_VIEWS}"),
+    ("translation", "design.sweep.views", [], f"design.sweep.views: got [] (list); expected {_SWEEP_VIEWS}"),
+    ("translation", "design.sweep.views", [0.5], f"design.sweep.views: got [0.5] (list); expected {_SWEEP_VIEWS}"),
+    ("general", "design.views", 3, f"design.views: got 3 (int); expected {_VIEWS}"),
+    ("general", "design.views", [1, 2], f"design.views: got [1, 2] (list); expected {_VIEWS}"),
+    ("translation", "design.sweep.values", {"list": ["a"]},
+     "design.sweep.values.list[0]: got 'a' (str); expected a number, or a [tx, ty] pair of numbers (translate)"),
+    ("translation", "design.sweep.values", {"list": [[1, 2, 3]]},
+     "design.sweep.values.list[0]: got [1, 2, 3] (list); expected a number, or a [tx, ty] pair of numbers (translate)"),
+    # lists: YAML's word, and a list whose items failed is not also 'too short'
+    ("translation", "design.sweep.values", {"list": 5}, "design.sweep.values.list: got 5 (int); expected a list"),
+    ("translation", "design.sweep.values", {"list": []},
+     "design.sweep.values.list: got [] (list); expected a list of at least 1 item(s)"),
+    ("general", "design.tortuosity", ["wiggly"],
+     "design.tortuosity[0]: got 'wiggly' (str); expected 'simple', 'moderate' or 'tortuous'"),
+    ("general", "metrics", "dice3d", "metrics: got 'dice3d' (str); expected a list"),
+])
+def test_union_and_list_fields_say_the_accepted_forms_in_one_line(tmp_path, base, field, value, expected):
+    data = _edit(config_to_dict(load_config(base)), field, value)
+    path = _write(tmp_path, data)
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert str(info.value) == f"{path}: {expected}"
+
+
 def test_more_selections_than_distinct_subsets_get_a_warning(tmp_path):
     from angiohull.errors import InputWarning
 

@@ -32,7 +32,8 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (BaseModel, ConfigDict, Field, ValidationError, ValidatorFunctionWrapHandler, WrapValidator,
+                      field_validator, model_validator)
 from pydantic_core import PydanticCustomError
 
 from .._yaml import load_yaml
@@ -83,6 +84,20 @@ def _problem(field: str, message: str) -> PydanticCustomError:
 
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _one_of(expected: str) -> WrapValidator:
+    """Validate a union with its own types, but say a value that none of its forms takes in one line of
+    plain words: pydantic reports one error per form, each under its internal type's name (e.g.
+    ``views.tuple[constrained-int, ...]: expected a valid tuple``)."""
+
+    def validate(value: Any, handler: ValidatorFunctionWrapHandler) -> Any:
+        try:
+            return handler(value)
+        except ValidationError:
+            raise ValueError(f"{_got(value)}; expected {expected}") from None
+
+    return WrapValidator(validate)
 
 
 def _finite(value: float, name: str) -> float:
@@ -208,7 +223,9 @@ class SweepValues(_Model):
 
     grid: Optional[GridValues] = None
     uniform: Optional[UniformValues] = None
-    list: Optional[tuple[Union[float, tuple[float, float]], ...]] = Field(None, min_length=1)
+    list: Optional[tuple[Annotated[Union[float, tuple[float, float]],
+                                   _one_of("a number, or a [tx, ty] pair of numbers (translate)")], ...]] = Field(
+        None, min_length=1)
 
     @model_validator(mode="after")
     def _exactly_one(self) -> "SweepValues":
@@ -230,7 +247,9 @@ class Sweep(_Model):
 
     corruption: Literal[CORRUPTION_KINDS] = Field(description="translate, scale, rotate, fp, fn, missing, blob, catheter")  # type: ignore[valid-type]
     values: SweepValues
-    views: Union[Literal["all"], Annotated[tuple[Annotated[int, Field(ge=0)], ...], Field(min_length=1)], None] = Field(
+    views: Annotated[Union[Literal["all"], Annotated[tuple[Annotated[int, Field(ge=0)], ...], Field(min_length=1)], None],
+                     _one_of("'all', or a list of view indices (whole numbers from 0; at least one), e.g. [0] or "
+                             "[0, 2]")] = Field(
         None, description="views it corrupts (default: view 0 for translate/scale/rotate, all views otherwise)")
 
     @model_validator(mode="after")
@@ -305,7 +324,10 @@ class TreesDesign(_Model):
     type: Literal["trees"]
     tortuosity: tuple[Level, ...] = Field(min_length=1, description="one group of trees per level")
     trees: int = Field(ge=1, le=1_000_000, description="trees per level and per sweep value")
-    views: Union[str, tuple[str, ...]] = Field(description="'perpendicular', 'clinical' or clinical angle strings")
+    views: Annotated[Union[str, tuple[str, ...]],
+                     _one_of("'perpendicular', 'clinical', clinical angle strings separated by ';' (e.g. 'RAO 30 CRA "
+                             "30; LAO 60 CRA 30'), or a list of such strings")] = Field(
+        description="'perpendicular', 'clinical' or clinical angle strings")
     sweep: Optional[Sweep] = None
     paired_trees: bool = Field(True, description="with a sweep: the same trees at every value (else new trees per value)")
 
@@ -510,7 +532,7 @@ def _format_loc(loc) -> str:
             text += f"[{part}]"
         elif index == 1 and loc[0] == "design" and part in ("trees", "n_views", "angles"):
             continue  # the discriminated union's tag is not a key of the file
-        elif str(part).startswith(("function-", "tagged-union", "literal[")) or part in ("tuple[float, float]", "float"):
+        elif str(part).startswith(("function-", "tagged-union", "literal[")):
             continue
         elif str(part).startswith("["):
             text += str(part)
@@ -566,6 +588,10 @@ def _describe(error: dict) -> tuple[str, str]:
         return f"{field}.type", "required key is missing; expected one of 'trees', 'n_views', 'angles'"
     if kind == "value_error":
         return field, f"{error['ctx']['error']}"
+    if kind == "tuple_type":  # (a YAML list; tuple is Python's word)
+        return field, f"{_got(error.get('input'))}; expected a list"
+    if kind == "too_short" and error["ctx"].get("field_type") in ("Tuple", "List"):
+        return field, f"{_got(error.get('input'))}; expected a list of at least {error['ctx']['min_length']} item(s)"
     message = error["msg"]
     if message.startswith("Input should be "):
         rest = message[len("Input should be "):]
@@ -585,7 +611,12 @@ def config_from_dict(data: Any, where: str = "experiment config") -> ExperimentC
         return ExperimentConfig.model_validate(data)
     except ValidationError as exc:
         problems = []
-        for error in exc.errors(include_url=False):
+        errors = exc.errors(include_url=False)
+        for error in errors:
+            loc = tuple(error["loc"])
+            if error["type"] == "too_short" and any(len(o["loc"]) > len(loc) and tuple(o["loc"][:len(loc)]) == loc
+                                                    for o in errors):
+                continue  # a list whose items failed is 'too short' too (pydantic counts the items that passed)
             field, message = _describe(error)
             line = f"{where}: {field}: {message}"
             if line not in problems:
