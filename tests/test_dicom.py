@@ -344,13 +344,18 @@ def test_a_file_cut_inside_its_header_is_called_truncated(tmp_path, compressed):
             (study + 12, f"in the value of StudyInstanceUID (0020,000D), {length - 4} byte(s) short of its length "
                          f"{length}"),
             (rows + 9, "in the value of Rows (0028,0010), 1 byte(s) short of its length 2"),
-            (rows + 10, "after Rows (0028,0010)"),
             (rows + 13, "in the element after Rows (0028,0010)"),  # a tag cut short
-            (pixels, "after PixelRepresentation (0028,0103)"),
             (pixels + 6, "in the element after PixelRepresentation (0028,0103)")]:  # the pixel data's own tag
         cut.write_bytes(data[:size])
         with pytest.raises(DicomError, match=re.escape(f"{cut}: the file ends early, inside its header ({where}; "
                                                        f"{size} bytes, before any {ends}")):
+            read_xa_header(cut)
+    # cut right after an element: what a whole file without an image looks like too, so both are said
+    for size, where in [(rows + 10, "after Rows (0028,0010)"), (pixels, "after PixelRepresentation (0028,0103)")]:
+        cut.write_bytes(data[:size])
+        with pytest.raises(DicomError, match=re.escape(f"{cut}: has no PixelData (7FE0,0010): the file ends "
+                                                       f"{where} ({size} bytes), as a DICOM file without an image "
+                                                       f"does, or one cut short right there")):
             read_xa_header(cut)
     cut.write_bytes(data[:600])  # (said "Rows (0028,0010) is missing")
     with pytest.raises(DicomError, match=re.escape(f"{cut}: the file ends early, inside its header (in ")):

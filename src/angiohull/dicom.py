@@ -435,6 +435,10 @@ def _read_dataset(path: Path, *, pixels: bool, caught: Optional[list] = None) ->
                                  f"from its source")
             reached = stopped < size if not pixels else any(tag in ds for tag in _PIXEL_TAGS)
             where = None if reached else _where_header_ends(ds, size)
+            if where is not None and where.startswith("after "):  # its last element whole: no image, or cut there
+                raise DicomError(f"{path}: has no {_tag('PixelData')}: the file ends {where} ({size} "
+                                 f"bytes), as a DICOM file without an image does, or one cut short right there (then "
+                                 f"copy it again from its source)")
             if where is not None:  # pydicom stops quietly where a file cut short ends: the rest is simply missing
                 raise _cut_short(path, size, where)
             _parse_all(path, ds)
