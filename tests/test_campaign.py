@@ -581,7 +581,12 @@ def test_a_tiny_mask_is_a_warning(tmp_path):
 
 def test_two_views_that_share_nothing_are_an_error(tmp_path, capsys):
     study = disc_study(tmp_path / "study", shift_px=25.0)  # the two cones miss each other
-    run_fails(capsys, _reconstruct(study, tmp_path / "out"), "empty", "lao90")
+    assert main(_reconstruct(study, tmp_path / "out")) == 2
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip() and not line.startswith("[")]
+    # the two masks' epipolar planes say by how much (the disc moved 25 px across the epipolar lines), then the error
+    assert len(lines) == 2 and lines[0].startswith("angiohull: warning: the two views' masks cover the same epipolar "
+                                                   "planes only with lao90 moved by 25.0 px")
+    assert lines[1].startswith("angiohull reconstruct: error: ") and "empty" in lines[1] and "lao90" in lines[1]
     assert not (tmp_path / "out").exists()
 
 

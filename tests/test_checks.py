@@ -117,3 +117,56 @@ def test_the_tree_method_refuses_one_view_without_a_warning_first():
         warnings.simplefilter("error")
         with pytest.raises(Exception, match="two views or more"):
             reconstruct(projections[:1], _y_masks(projections)[:1], method="tree")
+
+
+def test_two_views_whose_geometry_is_off_across_the_epipolar_lines_are_warned_about():
+    """View 1's mask moved 20 px along u: the two masks' epipolar planes agree again with view 1
+    moved back by the shift's component across its epipolar lines (worked out here from the
+    epipole: the lines run through it), to about a pixel; the right geometry asks for under 0.5 px."""
+    from angiohull.reconstruction.checks import EPIPOLAR_WARN_PX, epipolar_check_applies, epipolar_offset_px
+
+    projections = _views()
+    masks = _y_masks(projections)
+    assert epipolar_offset_px(projections, masks) < 0.5
+    moved = [masks[0], np.roll(masks[1], 20, axis=1)]
+    epipole = projections[1].project(projections[0].camera_centre_mm[None])[0]
+    centre = projections[1].project(np.zeros((1, 3)))[0]  # the Y lies around the isocentre
+    along = (centre - epipole) / np.linalg.norm(centre - epipole)
+    across = abs(20.0 * along[1])  # |(20, 0) . normal|, the normal (-along_v, along_u)
+    offset = epipolar_offset_px(projections, moved)
+    assert across > 2 * EPIPOLAR_WARN_PX and abs(offset - across) <= 1.0
+    [(category, message)] = input_warnings(projections, moved, ["a", "b"])
+    assert category is AgreementWarning
+    assert message.startswith(f"the two views' masks cover the same epipolar planes only with b moved by {offset:.1f} "
+                              f"px across its epipolar lines")
+    assert epipolar_offset_px(projections + projections[:1], masks + masks[:1]) == 0.0  # two views only
+    # not where a mask runs off its image's edge (its vessel beyond it moves the estimate) or is mostly vessel
+    cut = moved[1].copy()
+    cut[:, :3] = cut[:, :3] | (np.arange(cut.shape[0]) < 4)[:, None]
+    assert epipolar_check_applies(moved) and not epipolar_check_applies([moved[0], cut])
+    assert not epipolar_check_applies([moved[0], ~moved[1]])
+    assert [c for c, _ in input_warnings(projections, [moved[0], cut], ["a", "b"])] == [InputWarning]  # the edge's
+
+
+
+def test_the_command_line_gives_the_epipolar_warning_and_records_the_offset(tmp_path, capsys):
+    import json
+
+    from angiohull.cli import main
+    from angiohull.study import View, save_study
+
+    carms = [CArmGeometry(*parse_clinical_angles(v), 1200.0, 800.0, (0.35, 0.35), (512, 512)) for v in TWO]
+    masks = _y_masks([c.projection() for c in carms])
+    for shift, warned in ((0, False), (20, True)):
+        views = [View.from_carm("a", masks[0], carms[0]), View.from_carm("b", np.roll(masks[1], shift, axis=1),
+                                                                         carms[1])]
+        study = save_study(tmp_path / f"study{shift}", views)
+        out = tmp_path / f"out{shift}"
+        assert main(["reconstruct", str(study), "-o", str(out), "--method", "hull", "-k", "40", "--no-figure",
+                     "--no-viewer", "-q"]) == 0
+        lines = [line for line in capsys.readouterr().err.splitlines() if "epipolar planes" in line]
+        offset = json.loads((out / "report.json").read_text())["view_agreement"]["epipolar_offset_px"]
+        assert (offset > 9.0) == warned and len(lines) == int(warned)
+        if warned:
+            assert lines[0].startswith(f"angiohull: warning: the two views' masks cover the same epipolar planes only "
+                                       f"with b moved by {offset:.1f} px") and "try --calibrate" in lines[0]

@@ -330,10 +330,16 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
         if ambiguity:
             warnings.warn(ambiguity, AgreementWarning, stacklevel=1)
         agreement = dict(zip(study.names, calibration.coverage_after))
+        epipolar_px = None  # (the calibration of two views applies it)
     else:
         agreement = workflow.view_agreement(study, options)
+        epipolar_px = (workflow.epipolar_offset_px(study.projections, study.masks)
+                       if workflow.epipolar_check_applies(study.masks) else None)
     edges = workflow.edge_pixels(study.masks, study.names)
     message = workflow.agreement_warning(agreement, calibrated=options.calibrate, edges=edges)
+    if message:
+        warnings.warn(message, AgreementWarning, stacklevel=1)
+    message = workflow.epipolar_warning(epipolar_px or 0.0, study.names)
     if message:
         warnings.warn(message, AgreementWarning, stacklevel=1)
     separation = workflow.view_separation_deg(study.projections, study.names)
@@ -371,6 +377,8 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
     report["view_agreement"] = {"coverage": agreement, "min_coverage": workflow.AGREEMENT_MIN_COVERAGE,
                                 "disagreeing": [n for n, c in agreement.items() if c < workflow.AGREEMENT_MIN_COVERAGE],
                                 "after_calibration": calibration is not None}
+    if epipolar_px is not None:  # two views: the shift across view 1's epipolar lines their masks ask for
+        report["view_agreement"]["epipolar_offset_px"] = round(epipolar_px, 2)
     if calibration is not None:
         report["calibration"] = workflow.json_safe(calibration.to_dict(study.names))
     title = _run_title(study, result, options, calibration)

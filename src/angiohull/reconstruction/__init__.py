@@ -261,9 +261,11 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
         True): a mask that is mostly vessel, one view, views that look along nearly one line (under
         25 degrees), views that disagree (the paper's hull of all views covers under 95 % of a
         view's mask: a geometry off by pixels, or masks of other vessels) and, with two views,
-        vessel cut off by an image's edge. The agreement check carves a hull (0.03-0.3 s for two
-        512 x 512 views; ``timings_s["checks"]``, not in ``"total"``). ``warn=False`` skips them
-        (experiments that mean such inputs, timing benchmarks).
+        masks whose epipolar planes agree only with one view moved by 2 px or more (a geometry
+        off by pixels, which the hull's coverage hardly sees with two views) and vessel cut off
+        by an image's edge. The agreement checks carve a hull and bin the masks' epipolar planes
+        (0.2-0.8 s for two 512 x 512 views; ``timings_s["checks"]``, not in ``"total"``).
+        ``warn=False`` skips them (experiments that mean such inputs, timing benchmarks).
 
     Returns
     -------
