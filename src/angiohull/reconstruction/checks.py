@@ -154,7 +154,8 @@ def epipolar_warning(offset_px: float, names: Sequence[str], *, calibrate: str =
         return None
     return (f"the two views' masks cover the same epipolar planes only with {names[1]} moved by {offset_px:.1f} px "
             f"across its epipolar lines (0.0-0.4 px on generated trees whose geometry is right): the geometry is "
-            f"probably off by pixels, which moves the tree's points and can pair the wrong vessels (generated trees, "
+            f"probably off by pixels (or the masks do not show the same vessels, or one is mirrored), which moves the "
+            f"tree's points and can pair the wrong vessels (generated trees, "
             f"one view moved 20 px, 9 px of it across: the tree's shape 1.1-2.7 mm off); try {calibrate}, which "
             f"corrects the shift across the epipolar lines (the shape comes back to 0.3-1.3 mm there; the rest of the "
             f"shift moves the whole object by millimetres, which two views cannot tell)")
