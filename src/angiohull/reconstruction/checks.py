@@ -197,7 +197,8 @@ def input_warnings(projections: Sequence[Projection], masks: Sequence[np.ndarray
     """Every check of this module on checked inputs: ``(category, text)`` per warning to give, in
     the order masks, views (one view, or their angles), agreement (with two views, of the epipolar
     planes too), edges. The agreement check carves the paper's hull of all views (K = 256), the
-    epipolar one bins every mask pixel's plane: together 0.2-0.8 s for two 512 x 512 views."""
+    epipolar one bins every mask pixel's plane: together 0.08-0.13 s for two 512 x 512 views
+    (12 generated trees, 2026-12-07, this 2-core machine)."""
     found: list[tuple[type[Warning], str]] = []
     for mask, name in zip(masks, names):
         message = vessel_share_warning(mask, f"view {name!r}")

@@ -148,6 +148,11 @@ def two_view_shift(projection_0: Projection, projection_1: Projection, mask_0: n
     fine_width = FINE_STEP_PX * rate
     fine_0 = occupied(angles_0, half_0, fine_width)
     fine_moves = start + np.arange(-round(2.0 / FINE_STEP_PX), round(2.0 / FINE_STEP_PX) + 1) * FINE_STEP_PX
-    fine = np.array([agreement(fine_0, occupied(pencil.pixel_angles(projection_1, uv_1 - d * across), half_1,
-                                                fine_width)) for d in fine_moves])
+    # a pixel's ray is linear in the pixel (M^-1 (u, v, 1)) and a plane's angle does not depend on the
+    # ray's length: the rays of view 1's pixels moved by d are the unmoved ones less d times one step
+    matrix = projection_1.matrix[:, :3]
+    rays_1 = np.linalg.solve(matrix, np.column_stack([uv_1, np.ones(len(uv_1))]).T).T
+    ray_step = np.linalg.solve(matrix, np.array([across[0], across[1], 0.0]))
+    fine = np.array([agreement(fine_0, occupied(pencil.angle(rays_1 - d * ray_step), half_1, fine_width))
+                     for d in fine_moves])
     return float(np.mean(fine_moves[fine >= fine.max() - 1e-12])) * across
