@@ -221,6 +221,33 @@ def test_a_vessel_crossing_the_epipolar_lines_at_a_slant_has_a_candidate_on_its_
     assert np.mean(best[inner] <= 0.5) >= 0.95
 
 
+def test_a_view_that_shows_every_vessel_wider_is_measured_and_taken_off_where_the_radii_compare():
+    from angiohull.reconstruction.model import _view_data
+    from angiohull.reconstruction.model.matching import measured_width_bias, with_width_bias
+    from angiohull.synthetic import generate_tree
+
+    # a generated left tree; the second view's mask grown or shrunk by whole pixels (4-connected),
+    # as a segmentation that draws one view's edges farther out
+    projections = _views()
+    masks = [generate_tree("left", "moderate", rng=2).phantom.silhouette(p) for p in projections]
+    cross = ndi.generate_binary_structure(2, 1)
+    views = [_view_data(p, m) for p, m in zip(projections, masks)]
+    grown = [views[0], _view_data(projections[1], ndi.binary_dilation(masks[1], cross, iterations=2))]
+    shrunk = [views[0], _view_data(projections[1], ndi.binary_erosion(masks[1], cross))]
+    # measured 0.01, 1.73, -0.96 px (the grown edge moves 2 px along the rows and columns, 1.4 px
+    # diagonally); matched without the radius term instead: -0.16, 1.73, -1.09, and 1.13 px on
+    # exact masks of another tree, whose vessels only the radii pair right
+    assert abs(measured_width_bias(views)) <= 0.2
+    assert 1.5 <= measured_width_bias(grown) <= 2.0
+    assert -1.2 <= measured_width_bias(shrunk) <= -0.7
+    # split between the views: the radius of a pair, the views' mean, stays what they show
+    (first, second), bias = with_width_bias(grown)
+    assert first.width_bias_px == -0.5 * bias and second.width_bias_px == 0.5 * bias
+    # less than half a pixel is the pixel grid's own: not taken off
+    assert [v.width_bias_px for v in with_width_bias(views)[0]] == [0.0, 0.0]
+    assert with_width_bias(grown, replace(model.MATCH_SETTINGS, width_bias=False))[1] == 0.0
+
+
 def _distance_to_line(points, a, b):
     a, b = np.asarray(a, float), np.asarray(b, float)
     t = np.clip((points - a) @ (b - a) / ((b - a) @ (b - a)), 0.0, 1.0)

@@ -13,7 +13,9 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    least ``core_fraction`` of the local half-width deep), costs for the radius
    the two views show at that depth, 3D continuity and turns onto crossing vessels, minimised
    exactly over the pixel graph. Then ``claim_rounds`` more rounds, in which a candidate whose
-   partner pixel the reverse matching placed elsewhere costs more.
+   partner pixel the reverse matching placed elsewhere costs more. With two views, a per-view bias in the
+   widths (one view's edges drawn farther out) is measured on the matchings and taken off where
+   the radii compare (:func:`.matching.with_width_bias`).
 3. **Tubes**: each matched pixel, with the radius both views show, is a ball, joined by a tube
    to its matched neighbour; their lattice points form a volume.
 4. **Tree and fit** (its rules in :mod:`.pruning`): that volume's vessel tree (:func:`..vessel_tree.hull_tree`: skeleton, graph,
@@ -126,7 +128,8 @@ from ..cube import Lattice
 from ..vessel_tree import TREE_SETTINGS, SupportBridge, TreeBuild, TreeSettings, hull_tree, refit_tree
 from .graph2d import CenterlineGraph2D, centerline_graph
 from .agreement import mask_agreement, suspect_branches, tube_silhouette
-from .matching import MATCH_SETTINGS, Avoid, MatchSettings, ViewData, anchored_match, mask_core, match_pixels
+from .matching import (MATCH_SETTINGS, Avoid, MatchSettings, ViewData, anchored_match, mask_core, match_pixels,
+                       with_width_bias)
 from .forking import _can_fork, _ForkedBuilds, _in_processes  # noqa: F401 (the tests reach them here)
 from .tubes import lattice_points_in_tubes
 # step 4's rules (the tests reach the private ones here too)
@@ -306,7 +309,8 @@ class _Matchings:
     def __init__(self, projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice,
                  settings: ModelSettings):
         self.settings, self.lattice = settings, lattice
-        self.views = [_view_data(p, m, settings.match.core_fraction) for p, m in zip(projections, masks)]
+        self.views, self.width_bias_px = with_width_bias(
+            [_view_data(p, m, settings.match.core_fraction) for p, m in zip(projections, masks)], settings.match)
         self.pairs = tuple(_partners(projections))
         self.nearest = [v.nearest_skeleton for v in self.views]
         self._caches = {pair: {} for pair in self.pairs}  # the candidates and transitions
@@ -542,6 +546,10 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         matchings = _Matchings(projections, masks, lattice, settings)
         timings["centerlines_2d"] = time.perf_counter() - start
         say(f"2D centerlines: {', '.join(str(v.graph.n_pixels) for v in matchings.views)} skeleton pixels")
+        if len(matchings.views) == 2 and settings.match.width_bias:
+            taken = abs(matchings.width_bias_px) >= settings.match.width_bias_min_px
+            say(f"view 1 shows the vessels {matchings.width_bias_px:+.2f} px wider (half-width) than view 0"
+                + (": taken off where the matching compares radii" if taken else ""))
         start = time.perf_counter()
         correspondences = []
         for claim_cost in claim_costs:
