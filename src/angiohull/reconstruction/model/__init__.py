@@ -309,11 +309,13 @@ class _Matchings:
     def __init__(self, projections: Sequence[Projection], masks: Sequence[np.ndarray], lattice: Lattice,
                  settings: ModelSettings):
         self.settings, self.lattice = settings, lattice
-        self.views, self.width_bias_px = with_width_bias(
-            [_view_data(p, m, settings.match.core_fraction) for p, m in zip(projections, masks)], settings.match)
         self.pairs = tuple(_partners(projections))
+        # the candidates, transitions and first round's matchings (two views: the width bias's first round's)
+        self._caches = {pair: {} for pair in self.pairs}
+        self.views, self.width_bias_px = with_width_bias(
+            [_view_data(p, m, settings.match.core_fraction) for p, m in zip(projections, masks)], settings.match,
+            self._caches)
         self.nearest = [v.nearest_skeleton for v in self.views]
-        self._caches = {pair: {} for pair in self.pairs}  # the candidates and transitions
         self._others = {(a, b): [self.views[k] for k in range(len(self.views)) if k not in (a, b)]
                         for a, b in self.pairs}
         self._first: dict | None = None
