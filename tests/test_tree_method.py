@@ -1109,6 +1109,8 @@ def test_the_report_of_a_tree_reconstruction_names_its_pairs_prunings_and_stages
     [line] = [line for line in capsys.readouterr().err.splitlines() if "] vessel tree:" in line]
     assert line.endswith(f"({report['timings_s']['tree_tree']:.3f} s)") and report["timings_s"]["tree_tree"] > 0
     assert block["pairs"] == [["view0", "view1"], ["view1", "view0"]]
+    # the exact masks of one tree: no width bias between the views (under 0.5 px: nothing taken off)
+    assert abs(block["width_bias"]["view_1_wider_by_px"]) < 0.2 and block["width_bias"]["taken_off"] is False
     # the final tree was fitted twice (vessel_tree.refit_tree), the rounds' trees once
     assert report["tree"]["build"]["fit_passes"] == 2 and report["tree"]["build"]["timings_s"]["refit"] > 0
     assert set(block["branches_removed"]) == {"explained_by_the_others", "not_reproduced_by_the_matchings",

@@ -344,6 +344,9 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
             "rebuilds": int(build.rebuilds),
             "timings_s": {k: float(v) for k, v in build.timings_s.items()},
         }
+        if build.width_bias_px is not None:  # two views: one view's mask drawn wider (docs/tree-method.md, step 3)
+            report["tree_method"]["width_bias"] = {"view_1_wider_by_px": round(build.width_bias_px, 3),
+                                                   "taken_off": build.width_bias_taken}
         if build.claim_costs:  # two views: a tree per matching, the one judged best kept
             report["tree_method"]["matchings"] = {
                 "claim_costs": [float(c) for c in build.claim_costs],

@@ -228,6 +228,8 @@ class ModelBuild:
     hypotheses: tuple[tuple[float, float, float, float], ...] = ()  # two views: per hypothesis tree (module notes)
     # its claim cost, the length of the branch whose pairing it avoided (mm), its agreement with the masks and score
     kept_hypothesis: int | None = None  # ... the one kept (None: a matching's own tree)
+    width_bias_px: float | None = None  # two views: how much wider view 1 shows the vessels (half-width, px) ...
+    width_bias_taken: bool = False  # ... and whether it was taken off where the radii compare (matching notes, 7.)
 
 
 def _viewing_direction(projection: Projection) -> np.ndarray:
@@ -541,6 +543,7 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     timings: dict[str, float] = {}
     masks = [np.asarray(m, dtype=bool) for m in masks]
     nearest = views = None
+    width_bias: tuple[float | None, bool] = (None, False)
     if initial_points_mm is None:  # with two views, one matching per claim cost, and the best tree kept (notes)
         claim_costs = (settings.match.claim_cost,) + (settings.alternative_claim_costs if len(projections) == 2
                                                       else ())
@@ -550,6 +553,7 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         say(f"2D centerlines: {', '.join(str(v.graph.n_pixels) for v in matchings.views)} skeleton pixels")
         if len(matchings.views) == 2 and settings.match.width_bias:
             taken = abs(matchings.width_bias_px) >= settings.match.width_bias_min_px
+            width_bias = (float(matchings.width_bias_px), bool(taken))
             say(f"view 1 shows the vessels {matchings.width_bias_px:+.2f} px wider (half-width) than view 0"
                 + (": taken off where the matching compares radii" if taken else ""))
         start = time.perf_counter()
@@ -685,5 +689,6 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
                        kept_claim_cost=kept.claim_cost if judged else None,
                        hypotheses=tuple((h.correspondence.claim_cost, h.avoided_mm, h.agreement, h.score)
                                         for h in hypotheses),
-                       kept_hypothesis=next((j for j, h in enumerate(hypotheses) if h is best), None))
+                       kept_hypothesis=next((j for j, h in enumerate(hypotheses) if h is best), None),
+                       width_bias_px=width_bias[0], width_bias_taken=width_bias[1])
     return lumen, tree, build
