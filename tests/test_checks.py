@@ -169,3 +169,19 @@ def test_the_command_line_gives_the_epipolar_warning_and_records_the_offset(tmp_
         if warned:
             assert lines[0].startswith(f"angiohull: warning: the two views' masks cover the same epipolar planes only "
                                        f"with b moved by {offset:.1f} px") and "try --calibrate" in lines[0]
+
+
+def test_calibrating_two_views_notes_that_their_position_stays_open(tmp_path, capsys):
+    from angiohull.cli import main
+    from angiohull.study import View, save_study
+
+    carms = [CArmGeometry(*parse_clinical_angles(v), 1200.0, 800.0, (0.35, 0.35), (512, 512)) for v in TWO]
+    masks = _y_masks([c.projection() for c in carms])
+    views = [View.from_carm("a", masks[0], carms[0]), View.from_carm("b", np.roll(masks[1], 20, axis=1), carms[1])]
+    study = save_study(tmp_path / "study", views)
+    assert main(["reconstruct", str(study), "-o", str(tmp_path / "out"), "--method", "hull", "-k", "40",
+                 "--calibrate", "--no-figure", "--no-viewer"]) == 0
+    err = capsys.readouterr().err
+    assert "note: two views determine only the shift across the epipolar lines" in err
+    assert "the two views' masks cover the same epipolar planes" not in err  # the calibration applied it
+

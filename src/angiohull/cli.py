@@ -7,6 +7,7 @@ import json
 import os
 import sys
 import time
+import math
 import warnings
 from pathlib import Path
 from typing import Sequence, TextIO
@@ -324,6 +325,11 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
         progress(f"shifts (du, dv) px: {shifts} ({calibration.outcome.split(':')[0]}, {calibration.time_s:.1f} s)")
         if options.calibrate_scale:
             progress("scales: " + ", ".join(f"{n} {f:.4f}" for n, f in zip(study.names, calibration.scales)))
+        moved_px = max(math.hypot(du, dv) for du, dv in calibration.shifts_px)
+        if len(study.views) == 2 and moved_px >= 1.0 and not calibration.outcome.startswith("reverted"):
+            progress("note: two views determine only the shift across the epipolar lines: the vessels' shape comes "
+                     "back, but the whole object may sit millimetres from where it is along the rest of the shift, "
+                     "which two views cannot see (one view moved 20 px: 4.2-4.8 mm; docs/tree-method.md)")
         if calibration.outcome.startswith("reverted"):
             warnings.warn(f"calibration {calibration.outcome}", AgreementWarning, stacklevel=1)
         ambiguity = workflow.ambiguity_warning(calibration, study.names)
