@@ -122,7 +122,8 @@ def test_two_views_whose_geometry_is_off_across_the_epipolar_lines_are_warned_ab
     """View 1's mask moved 20 px along u: the two masks' epipolar planes agree again with view 1
     moved back by the shift's component across its epipolar lines (worked out here from the
     epipole: the lines run through it), to about a pixel; the right geometry asks for under 0.5 px."""
-    from angiohull.reconstruction.checks import EPIPOLAR_WARN_PX, epipolar_check_applies, epipolar_offset_px
+    from angiohull.reconstruction.checks import (EPIPOLAR_WARN_PX, epipolar_check_applies, epipolar_offset_px,
+                                                 epipolar_warning)
 
     projections = _views()
     masks = _y_masks(projections)
@@ -139,12 +140,18 @@ def test_two_views_whose_geometry_is_off_across_the_epipolar_lines_are_warned_ab
     assert message.startswith(f"the two views' masks cover the same epipolar planes only with b moved by {offset:.1f} "
                               f"px across its epipolar lines")
     assert epipolar_offset_px(projections + projections[:1], masks + masks[:1]) == 0.0  # two views only
-    # not where a mask runs off its image's edge (its vessel beyond it moves the estimate) or is mostly vessel
+    # not where a mask is mostly vessel; where one runs off its image's edge (its vessel beyond moves the
+    # estimate), from 3 px on
+    assert epipolar_check_applies(moved) and not epipolar_check_applies([moved[0], ~moved[1]])
+    cut = np.roll(masks[1], 4, axis=1)  # moved 4 px: about 1.9 px across, under both bars
+    cut[:4, 0] = True  # a vessel leaving the image: a run of 4 on its left edge
+    assert epipolar_check_applies([masks[0], cut])
+    assert [c for c, _ in input_warnings(projections, [masks[0], cut], ["a", "b"])] == [InputWarning]  # the edge's
     cut = moved[1].copy()
-    cut[:, :3] = cut[:, :3] | (np.arange(cut.shape[0]) < 4)[:, None]
-    assert epipolar_check_applies(moved) and not epipolar_check_applies([moved[0], cut])
-    assert not epipolar_check_applies([moved[0], ~moved[1]])
-    assert [c for c, _ in input_warnings(projections, [moved[0], cut], ["a", "b"])] == [InputWarning]  # the edge's
+    cut[:4, 0] = True
+    said = [m for c, m in input_warnings(projections, [moved[0], cut], ["a", "b"]) if c is AgreementWarning]
+    assert len(said) == 1 and "(up to 2.2 px on generated vessels that run off an image's edge whose" in said[0]
+    assert epipolar_warning(2.5, ["a", "b"]) is not None and epipolar_warning(2.5, ["a", "b"], cut=True) is None
 
 
 

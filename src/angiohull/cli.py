@@ -345,7 +345,7 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
     message = workflow.agreement_warning(agreement, calibrated=options.calibrate, edges=edges)
     if message:
         warnings.warn(message, AgreementWarning, stacklevel=1)
-    message = workflow.epipolar_warning(epipolar_px or 0.0, study.names)
+    message = workflow.epipolar_warning(epipolar_px or 0.0, study.names, cut=any(edges.values()))
     if message:
         warnings.warn(message, AgreementWarning, stacklevel=1)
     separation = workflow.view_separation_deg(study.projections, study.names)
