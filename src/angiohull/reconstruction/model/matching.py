@@ -610,14 +610,14 @@ def _clear_pixels(view: ViewData) -> np.ndarray:
     return (g.degree == 2) & (apart > 2.0 * g.half_width_px + 2.0)
 
 
-def _width_differences(views: Sequence[ViewData], settings: MatchSettings, caches: dict | None = None
-                       ) -> np.ndarray:
+def _width_differences(views: Sequence[ViewData], settings: MatchSettings, clear: Sequence[np.ndarray],
+                       caches: dict | None = None) -> np.ndarray:
     """View 1's half-width less view 0's (px, the matched pixel's brought to its partner's scale at
     the matched point; the views' own half-widths, whatever their ``width_bias_px``) over the pairs
     of each view's matching into the other (as the views' biases stand) whose two pixels lie inside
     a chain away from its ends and junctions, the partner within a pixel of the other view's
-    skeleton. ``caches``: :func:`match_pixels`'s cache per pair (a, b) of these views."""
-    clear = [_clear_pixels(v) for v in views]
+    skeleton. ``caches``: :func:`match_pixels`'s cache per pair (a, b) of these views.
+    ``clear``: :func:`_clear_pixels` of each view (its graph's, whatever the bias)."""
     differences = []
     for a, b, sign in ((0, 1, 1.0), (1, 0, -1.0)):
         va, vb = views[a], views[b]
@@ -649,9 +649,10 @@ def measured_width_bias(views: Sequence[ViewData], settings: MatchSettings = MAT
     go, but paired the wrong vessels where only the radii tell them apart: 1.1 px on exact masks of
     one tree.)"""
     bias = 0.0
+    clear = [_clear_pixels(v) for v in views]  # (the graphs' own: the same every round)
     for round_ in range(_WIDTH_BIAS_ROUNDS):
         split = [replace(views[0], width_bias_px=-0.5 * bias), replace(views[1], width_bias_px=0.5 * bias)]
-        differences = _width_differences(split, settings, caches if round_ == 0 else None)
+        differences = _width_differences(split, settings, clear, caches if round_ == 0 else None)
         if len(differences) < _WIDTH_BIAS_MIN_PAIRS:
             return 0.0
         measured = float(np.median(differences))
