@@ -130,9 +130,13 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="run the whole pipeline on a built-in synthetic RCA tree",
                        description="Generate a synthetic right coronary tree (fixed seed), render it into three "
-                                   "clinical views, reconstruct it, score it, and write everything into OUT_DIR.")
+                                   "clinical views (or two, --views 2), reconstruct it, score it, and write "
+                                   "everything into OUT_DIR.")
     p.add_argument("-o", "--output", type=Path, default=Path("angiohull-demo"), metavar="OUT_DIR",
                    help="output folder (default ./angiohull-demo)")
+    p.add_argument("--views", type=int, choices=(2, 3), default=3, metavar="N",
+                   help="3 (default): RAO 30 CRA 30, LAO 60 CRA 30, RAO 30 CAU 30; 2: RAO 30 CAU 25 and LAO 45 "
+                        "CRA 20, the clinical standard, where the tree method matters most")
     p.add_argument("--overwrite", action="store_true",
                    help="replace a non-empty OUT_DIR (an earlier demo's folder is replaced without it)")
     _add_reconstruction_options(p)
@@ -539,8 +543,9 @@ def _cmd_demo(args) -> int:
     # the demo's own earlier output (run it twice) is replaced; any other non-empty folder needs --overwrite
     with output_folder(args.output, overwrite=args.overwrite, what="the demo",
                        replaceable=lambda folder: folder_holds_only(folder, DEMO_OUTPUTS)) as staged:
-        progress("drawing the built-in synthetic RCA tree (seed 2025) and rendering three clinical views")
-        study_yaml = write_demo_study(staged.path / "study")
+        progress(f"drawing the built-in synthetic RCA tree (seed 2025) and rendering {('two', 'three')[args.views - 2]} "
+                 f"clinical views")
+        study_yaml = write_demo_study(staged.path / "study", args.views)
         progress(f"wrote the study: {staged.final(study_yaml)}")
         study = load_study(study_yaml)
         _, report, scores = _run_study(study, options, staged, progress, figure=True, score=True, viewer=True)
