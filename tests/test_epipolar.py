@@ -66,3 +66,19 @@ def test_calibration_with_two_views_moves_one_view_by_the_determined_shift():
     assert _geometry_error(projections, shifts, [(0.0, 10.0), (0.0, 0.0)]) < 0.3
     assert min(calibration.coverage_after) >= min(calibration.coverage_before)
     assert calibration.silhouette_fit == "not run: two views"  # step 8 needs three views
+
+
+def test_two_views_that_agree_within_the_noise_are_left_exactly_alone():
+    """The demo's tree in its two clinical views: the estimate (0.05 px) is under TWO_VIEW_NOISE_PX,
+    so no view moves at all (it had moved both by about 0.02 px, and the tree method then kept another
+    reading of the views: centerline 0.35 -> 1.71 mm from the truth)."""
+    from angiohull.demo import demo_options
+    from angiohull.reconstruction.calibration import TWO_VIEW_NOISE_PX
+
+    case = make_case(demo_options(2))
+    projections, masks = [v.projection for v in case.views], [v.mask for v in case.views]
+    assert np.linalg.norm(two_view_shift(*projections, *masks)) < TWO_VIEW_NOISE_PX
+    calibration = calibrate_shifts(projections, masks)
+    assert calibration.shifts_px == ((0.0, 0.0), (0.0, 0.0))
+    assert calibration.gauge_translation_mm == (0.0, 0.0, 0.0)
+    assert calibration.outcome == "unchanged"
