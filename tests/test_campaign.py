@@ -274,7 +274,7 @@ def test_a_failure_late_in_the_run_keeps_the_earlier_result(tmp_path, capsys, mo
 
 def test_demo_replaces_its_own_earlier_output(tmp_path, capsys, monkeypatch):
     """`angiohull demo` twice in a row works; another non-empty folder needs --overwrite."""
-    monkeypatch.setattr("angiohull.demo.write_demo_study", lambda folder: disc_study(Path(folder)))
+    monkeypatch.setattr("angiohull.demo.write_demo_study", lambda folder, views=3: disc_study(Path(folder)))
     monkeypatch.setattr("angiohull.viz.reconstruction_figure", lambda path, **kw: Path(path).write_bytes(b"png") and Path(path))
     out = tmp_path / "demo"
     argv = ["demo", "-o", str(out), "-k", "20", "--method", "hull"]
