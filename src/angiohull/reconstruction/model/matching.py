@@ -422,7 +422,9 @@ def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), sett
     A's junctions, hang together. With ``avoid``, the candidates in its region cost more (before
     each pixel's cheapest ``max_candidates`` are kept). ``cache`` (a dict, the same views and
     settings each call): the candidates and transitions are computed once, and the matching without
-    claims or ``avoid`` is returned again (the same arrays: not to be changed).
+    claims or ``avoid`` is returned again (the same arrays: not to be changed); with ``avoid``, the
+    avoided candidates and their transitions are kept there too for the next call with the same
+    ``avoid`` (the same object: the rounds of one hypothesis's matchings), the last one's only.
 
     Returns
     -------
@@ -450,8 +452,12 @@ def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), sett
         if cache is not None:
             cache.update(candidates=cands, parent=parent, levels=levels, every=every)
     if avoid is not None:  # other candidates than the cached ones, so their transitions too
-        cands = _cheapest(_avoiding(every, avoid), settings.max_candidates)
-        cache = None
+        avoided = cache.get("avoided") if cache is not None else None
+        if avoided is None or avoided["avoid"] is not avoid:  # kept for the next round of this avoid
+            avoided = {"avoid": avoid, "candidates": _cheapest(_avoiding(every, avoid), settings.max_candidates)}
+            if cache is not None:
+                cache["avoided"] = avoided
+        cands, cache = avoided["candidates"], avoided
     cost_of = cands.unary
     if claims is not None:
         cost_of = cost_of + settings.claim_cost * _claimed(a, np.arange(n_p), cands, claims, settings)
@@ -509,7 +515,7 @@ def match_pixels(a: ViewData, b: ViewData, others: Sequence[ViewData] = (), sett
     idx = np.flatnonzero(matched)
     points[idx] = point[idx, state[idx]]
     radii[idx] = radius[idx, state[idx]]
-    if cache is not None and claims is None:  # (an avoided matching has set cache None)
+    if cache is not None and claims is None and avoid is None:
         cache["unclaimed"] = (points, radii, parent)
     return points, radii, parent
 
