@@ -136,8 +136,8 @@ from .tubes import lattice_points_in_tubes
 from .pruning import (_DiscPairs, _explained_pruning, _holding, _kept, _nearest_discs, _tube_segments,  # noqa: F401
                       _unreproduced_pruning, _window_medians, _without, contradicted_stretches, covered_points,
                       explained_shares, explaining_points, prune_explained_branches, prune_unreproduced_branches,
-                      redundant_branches, reproduced_points, restore_uncovered_branches, tree_lumen_points,
-                      unreproduced_inner_branches, without_radius_spikes)
+                      redundant_branches, reproduced_points, restore_uncovered_branches, tree_disc_pairs,
+                      tree_lumen_points, unreproduced_inner_branches, without_radius_spikes)
 
 __all__ = ["ModelSettings", "MODEL_SETTINGS", "ModelBuild", "model_tree", "centerline_graph", "CenterlineGraph2D",
            "MatchSettings", "lattice_points_in_tubes", "explained_shares", "prune_explained_branches",
@@ -400,12 +400,15 @@ def _tree_from_volume(projections: Sequence[Projection], masks: Sequence[np.ndar
                                                                     join_order=settings.correspondence_join_order))
         built, tree_build = hull_tree(volume, lattice, projections, masks, support_bridge=bridge,
                                       settings=tree_settings)
-        tree, kept = _explained_pruning(built, projections, settings.explained_share, settings.explained_reach_radii)
+        # the disc pairs of the built tree, searched once for the three rules (branches only go)
+        disc_pairs = _DiscPairs(built, projections, settings.explained_reach_radii)
+        tree, kept = _explained_pruning(built, projections, settings.explained_share, settings.explained_reach_radii,
+                                        disc_pairs)
         explained_kept = np.isin(np.arange(built.n_branches), kept)
         if own is not None:  # the correspondences made the volume: their own matchings judge its branches
             tree, still = _unreproduced_pruning(
                 tree, projections, own, nearest, tolerance_mm=settings.reproduced_mm, share=settings.reproduced_share,
-                explained=settings.unreproduced_explained, reach_radii=settings.explained_reach_radii)
+                explained=settings.unreproduced_explained, reach_radii=settings.explained_reach_radii, pairs=disc_pairs)
             kept = [kept[k] for k in still]
         alive = np.isin(np.arange(built.n_branches), kept)
         pruned, unreproduced = int((~explained_kept).sum()), int((explained_kept & ~alive).sum())
@@ -415,7 +418,7 @@ def _tree_from_volume(projections: Sequence[Projection], masks: Sequence[np.ndar
             removal_cover = np.where(explained_kept, settings.unreproduced_explained,
                                      np.nextafter(settings.explained_share, np.inf))
             alive, restored = restore_uncovered_branches(built, alive, removal_cover, projections,
-                                                         settings.explained_reach_radii)
+                                                         settings.explained_reach_radii, disc_pairs.whole())
             if restored:
                 tree = _kept(built, alive)
         return tree, tree_build, pruned, unreproduced, restored
@@ -424,13 +427,15 @@ def _tree_from_volume(projections: Sequence[Projection], masks: Sequence[np.ndar
     tree = without_radius_spikes(tree, settings.spike_window_mm, settings.spike_ratio)
     stretch_points = inner_removed = rebuilds = 0
     while own is not None and rebuilds < settings.stretch_rounds:  # ... and the stretches inside branches
+        disc_pairs = tree_disc_pairs(tree, projections, settings.explained_reach_radii)  # searched once for both
         stretches = contradicted_stretches(tree, projections, own, nearest, tolerance_mm=settings.reproduced_mm,
                                            reach_radii=settings.explained_reach_radii,
-                                           apart_mm=settings.stretch_apart_mm, min_length_mm=settings.stretch_min_mm)
+                                           apart_mm=settings.stretch_apart_mm, min_length_mm=settings.stretch_min_mm,
+                                           pairs=disc_pairs)
         inner = unreproduced_inner_branches(tree, projections, own, nearest, tolerance_mm=settings.reproduced_mm,
                                             share=settings.reproduced_share,
                                             explained=settings.unreproduced_explained,
-                                            reach_radii=settings.explained_reach_radii)
+                                            reach_radii=settings.explained_reach_radii, pairs=disc_pairs)
         out = stretches | inner
         if not out.any():
             break

@@ -22,7 +22,7 @@ from .tubes import lattice_points_in_tubes
 
 __all__ = ["explained_shares", "prune_explained_branches", "reproduced_points", "prune_unreproduced_branches",
            "unreproduced_inner_branches", "covered_points", "contradicted_stretches", "restore_uncovered_branches",
-           "without_radius_spikes", "tree_lumen_points", "explaining_points", "redundant_branches"]
+           "without_radius_spikes", "tree_lumen_points", "explaining_points", "redundant_branches", "tree_disc_pairs"]
 
 
 def _kept(tree: VesselTree, alive: np.ndarray) -> VesselTree:
@@ -86,6 +86,10 @@ class _DiscPairs:
         self._ids = list(range(tree.n_branches))  # each branch's index in the first tree
         self._keep = np.ones(len(points), dtype=bool)
 
+    def whole(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """The pairs per view of the whole first tree, whatever went since."""
+        return self._views
+
     def without(self, branch: int) -> None:
         """Branch ``branch`` (its index in the tree now) went, as :func:`_without` takes it (the
         others' points keep their order)."""
@@ -146,10 +150,13 @@ def prune_explained_branches(tree: VesselTree, projections: Sequence[Projection]
 
 
 def _explained_pruning(tree: VesselTree, projections: Sequence[Projection], share: float,
-                       reach_radii: float) -> tuple[VesselTree, list[int]]:
-    """:func:`prune_explained_branches`: the tree, and the indices its branches had in ``tree``."""
+                       reach_radii: float, pairs: _DiscPairs | None = None) -> tuple[VesselTree, list[int]]:
+    """:func:`prune_explained_branches`: the tree, and the indices its branches had in ``tree``.
+    ``pairs``: ``tree``'s :class:`_DiscPairs`, told of every branch that goes (searched here when
+    not given)."""
     kept = list(range(tree.n_branches))
-    pairs = _DiscPairs(tree, projections, reach_radii)  # searched once; branches only go
+    if pairs is None:
+        pairs = _DiscPairs(tree, projections, reach_radii)  # searched once; branches only go
     while tree.n_branches > 1:
         shares = explained_shares(tree, projections, reach_radii, pairs=pairs.current()).min(axis=1)
         sizes = np.array([sum(tree.branches[b].n_points for b in members) for members in _subtrees(tree)])
@@ -211,10 +218,13 @@ def prune_unreproduced_branches(tree: VesselTree, projections: Sequence[Projecti
 
 def _unreproduced_pruning(tree: VesselTree, projections: Sequence[Projection], own_points_mm: Sequence[np.ndarray],
                           nearest_skeleton: Sequence[np.ndarray], *, tolerance_mm: float, share: float,
-                          explained: float, reach_radii: float) -> tuple[VesselTree, list[int]]:
-    """:func:`prune_unreproduced_branches`: the tree, and the indices its branches had in ``tree``."""
+                          explained: float, reach_radii: float,
+                          pairs: _DiscPairs | None = None) -> tuple[VesselTree, list[int]]:
+    """:func:`prune_unreproduced_branches`: the tree, and the indices its branches had in ``tree``.
+    ``pairs``: the :class:`_DiscPairs` of a tree that ``tree`` is what is left of (the one before
+    :func:`_explained_pruning`, told of what went there), told of every branch that goes here
+    (else searched when first needed)."""
     kept = list(range(tree.n_branches))
-    pairs = None  # the disc pairs, searched once when first needed (:class:`_DiscPairs`)
     while tree.n_branches > 1:
         reproduced = reproduced_points(tree, projections, own_points_mm, nearest_skeleton, tolerance_mm)
         _, _, owner = tree.points()
@@ -237,7 +247,8 @@ def _unreproduced_pruning(tree: VesselTree, projections: Sequence[Projection], o
 
 
 def restore_uncovered_branches(tree: VesselTree, alive: np.ndarray, removal_cover: np.ndarray,
-                               projections: Sequence[Projection], reach_radii: float) -> tuple[np.ndarray, int]:
+                               projections: Sequence[Projection], reach_radii: float,
+                               pairs: list | None = None) -> tuple[np.ndarray, int]:
     """Put back the pruned branches that what is kept no longer covers as their removal asked.
 
     A prune removes a subtree for what the rest of the tree covers of it then (the explained rule:
@@ -260,6 +271,8 @@ def restore_uncovered_branches(tree: VesselTree, alive: np.ndarray, removal_cove
     projections : sequence of Projection
     reach_radii : float
         :func:`explained_shares`' reach.
+    pairs : list, optional
+        ``tree``'s disc pairs per view (:meth:`_DiscPairs.whole`), when the prunings searched them.
 
     Returns
     -------
@@ -271,7 +284,8 @@ def restore_uncovered_branches(tree: VesselTree, alive: np.ndarray, removal_cove
     alive = np.array(alive, dtype=bool)
     removal_cover = np.asarray(removal_cover, dtype=float)
     subtrees, owner = _subtrees(tree), tree.points()[2]
-    pairs = _DiscPairs(tree, projections, reach_radii).current()  # the tree stays whole: searched once
+    if pairs is None:  # the tree stays whole: searched once
+        pairs = _DiscPairs(tree, projections, reach_radii).current()
     restored = 0
     while True:
         roots = [b for b in range(1, tree.n_branches) if not alive[b] and alive[tree.branches[b].parent]]
@@ -291,7 +305,7 @@ def restore_uncovered_branches(tree: VesselTree, alive: np.ndarray, removal_cove
 def unreproduced_inner_branches(tree: VesselTree, projections: Sequence[Projection],
                                 own_points_mm: Sequence[np.ndarray], nearest_skeleton: Sequence[np.ndarray], *,
                                 tolerance_mm: float, share: float, explained: float,
-                                reach_radii: float) -> np.ndarray:
+                                reach_radii: float, pairs: list | None = None) -> np.ndarray:
     """(N,) per point of ``tree.points()``: it belongs to a branch that carries children (not the
     root) of whose own points less than ``share`` are reproduced (:func:`reproduced_points`) and
     at least ``explained`` are covered in every view by reproduced points of the other branches
@@ -299,7 +313,8 @@ def unreproduced_inner_branches(tree: VesselTree, projections: Sequence[Projecti
     (:func:`prune_unreproduced_branches`) weighs a branch with its descendants: a phantom that
     carries a true branch (the views' mismatch ran on into a vessel both show) is reproduced
     enough with it and stays, and the true branch could not go with it. Its points are taken out
-    of the tubes like a contradicted stretch; the children are joined again through the hull."""
+    of the tubes like a contradicted stretch; the children are joined again through the hull.
+    ``pairs``: the tree's disc pairs per view (:func:`tree_disc_pairs`), when already searched."""
     points, _, owner = tree.points()
     reproduced = reproduced_points(tree, projections, own_points_mm, nearest_skeleton, tolerance_mm)
     carries = np.zeros(tree.n_branches, dtype=bool)
@@ -310,25 +325,35 @@ def unreproduced_inner_branches(tree: VesselTree, projections: Sequence[Projecti
     if not candidates:
         return marked
     groups = [owner == b for b in candidates]
-    covered = _covered_shares(tree, projections, reach_radii, groups, by=reproduced).min(axis=1)
+    covered = _covered_shares(tree, projections, reach_radii, groups, by=reproduced, pairs=pairs).min(axis=1)
     for members, c in zip(groups, covered):
         if c >= explained:
             marked |= members
     return marked
 
 
+def tree_disc_pairs(tree: VesselTree, projections: Sequence[Projection], reach_radii: float) -> list:
+    """:func:`_overlapping_discs` of the tree's points in every view: searched once for the rules
+    that read them on one tree (``pairs`` of :func:`covered_points`, :func:`contradicted_stretches`
+    and :func:`unreproduced_inner_branches`)."""
+    points, radius, _ = tree.points()
+    return [_overlapping_discs(points, radius, projection, reach_radii) for projection in projections]
+
+
 def covered_points(tree: VesselTree, projections: Sequence[Projection], reach_radii: float,
-                   apart_mm: float, by: np.ndarray | None = None) -> np.ndarray:
+                   apart_mm: float, by: np.ndarray | None = None, pairs: list | None = None) -> np.ndarray:
     """(N,) per point of ``tree.points()``: in every view its projected disc (radius plus half a
     pixel) overlaps the disc of a tree point more than ``apart_mm`` from it in 3D by the measure of
     :func:`explained_shares` (its projection within the other's radius plus ``reach_radii`` of its
     own). The points of its own vessel nearby, and of the branches at its junction, do not count;
-    with ``by`` ((N,) bool), only those points cover."""
+    with ``by`` ((N,) bool), only those points cover. ``pairs``: the tree's disc pairs per view
+    (:func:`tree_disc_pairs`), when already searched."""
     points, radius, _ = tree.points()
     by = np.ones(len(points), dtype=bool) if by is None else by
     covered = np.ones(len(points), dtype=bool)
-    for projection in projections:
-        i, j, i_in_j, j_in_i = _overlapping_discs(points, radius, projection, reach_radii)
+    for v, projection in enumerate(projections):
+        i, j, i_in_j, j_in_i = (_overlapping_discs(points, radius, projection, reach_radii) if pairs is None
+                                else pairs[v])
         apart = np.linalg.norm(points[i] - points[j], axis=1) > apart_mm
         seen = np.zeros(len(points), dtype=bool)
         seen[i[i_in_j & apart & by[j]]] = True
@@ -339,16 +364,17 @@ def covered_points(tree: VesselTree, projections: Sequence[Projection], reach_ra
 
 def contradicted_stretches(tree: VesselTree, projections: Sequence[Projection], own_points_mm: Sequence[np.ndarray],
                            nearest_skeleton: Sequence[np.ndarray], *, tolerance_mm: float, reach_radii: float,
-                           apart_mm: float, min_length_mm: float) -> np.ndarray:
+                           apart_mm: float, min_length_mm: float, pairs: list | None = None) -> np.ndarray:
     """(N,) per point of ``tree.points()``: it lies in a run of consecutive points of its branch, at
     least ``min_length_mm`` of arc long, each of which some view's own matching puts elsewhere
     (farther than ``tolerance_mm``, :func:`reproduced_points`) and tree points farther than
     ``apart_mm`` cover in every view (:func:`covered_points`; contradicted ones too): a stretch of
     a vessel of A matched to the wrong vessel of B inside a branch, which no subtree rule can take
-    out. A true stretch taken out is joined again through the hull, a phantom one left in stays."""
+    out. A true stretch taken out is joined again through the hull, a phantom one left in stays.
+    ``pairs``: the tree's disc pairs per view (:func:`tree_disc_pairs`), when already searched."""
     points, _, _ = tree.points()
     contradicted = _contradicted(points, projections, own_points_mm, nearest_skeleton, tolerance_mm)
-    suspect = contradicted & covered_points(tree, projections, reach_radii, apart_mm)
+    suspect = contradicted & covered_points(tree, projections, reach_radii, apart_mm, pairs=pairs)
     marked = np.zeros(len(points), dtype=bool)
     offset = 0
     for branch in tree.branches:
