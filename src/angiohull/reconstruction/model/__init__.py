@@ -314,8 +314,12 @@ class _Matchings:
         self.pairs = tuple(_partners(projections))
         # the candidates, transitions and first round's matchings (two views: the width bias's first round's)
         self._caches = {pair: {} for pair in self.pairs}
+        # each view's data in a process of its own where that is safe (forked children: the same
+        # arrays back, given the caller's projection and mask objects again)
+        views = _in_processes([lambda p=p, m=m: _view_data(p, m, settings.match.core_fraction)
+                               for p, m in zip(projections, masks)], settings.fork_alternatives)
         self.views, self.width_bias_px = with_width_bias(
-            [_view_data(p, m, settings.match.core_fraction) for p, m in zip(projections, masks)], settings.match,
+            [replace(v, projection=p, mask=m) for v, p, m in zip(views, projections, masks)], settings.match,
             self._caches)
         self.nearest = [v.nearest_skeleton for v in self.views]
         self._others = {(a, b): [self.views[k] for k in range(len(self.views)) if k not in (a, b)]

@@ -1,5 +1,6 @@
 """Builds run in forked child processes while this one builds others (the ``tree`` method's
-matchings and hypotheses, module notes of :mod:`angiohull.reconstruction.model`).
+views' 2D centerline data, matchings and hypotheses, module notes of
+:mod:`angiohull.reconstruction.model`).
 
 On Linux with two CPUs or more and no other Python thread (:func:`_can_fork`) children are forked;
 each runs the same code on the same arrays and sends its results back pickled through a pipe. No
