@@ -395,6 +395,28 @@ def test_explained_shares_match_a_point_by_point_reference(reach_radii):
         np.testing.assert_allclose(shares[:, v], _explained_by_brute_force(tree, projection, reach_radii), atol=1e-12)
 
 
+@pytest.mark.parametrize("reach_radii", [0.0, 0.5])
+def test_covered_shares_of_any_point_groups_match_a_point_by_point_reference(reach_radii):
+    # groups that are not whole branches (the rules' are): every point's own set of groups counts
+    from angiohull.reconstruction.model.pruning import _covered_shares
+
+    tree, projections = _with_phantoms(tail_mm=12.0), _views()
+    points, radius, _ = tree.points()
+    rng = np.random.default_rng(5)
+    groups = [rng.random(len(points)) < share for share in (0.1, 0.3, 0.5, 0.8)] + [np.zeros(len(points), bool)]
+    by = rng.random(len(points)) < 0.7
+    shares = _covered_shares(tree, projections, reach_radii, groups, by=by)
+    for v, projection in enumerate(projections):
+        uv = projection.project(points)
+        rho = radius * max(projection.focal_lengths_px) / projection.depth_mm(points) + 0.5
+        for g, mine in enumerate(groups):
+            others = ~mine & by
+            covered = [np.any(np.linalg.norm(uv[others] - uv[k], axis=1) <= rho[others] + reach_radii * rho[k])
+                       for k in np.flatnonzero(mine)]
+            assert shares[g, v] == (np.mean(covered) if covered else 0.0)
+    assert _covered_shares(tree, projections, reach_radii, []).shape == (0, len(projections))
+
+
 def test_disc_pairs_searched_once_serve_the_tree_left_when_branches_go():
     from angiohull.reconstruction.model import _DiscPairs, _without, explained_shares
 

@@ -114,25 +114,33 @@ def _covered_shares(tree: VesselTree, projections: Sequence[Projection], reach_r
     group's points that points outside it cover there (:func:`explained_shares`); with ``by``
     ((N,) bool), only those points cover; with ``pairs``, the tree's disc pairs per view
     (:class:`_DiscPairs`)."""
-    import scipy.sparse as sparse
-
     points, radius, _ = tree.points()
     by = np.ones(len(points), dtype=bool) if by is None else by
     members = np.array(groups, dtype=bool).reshape(len(groups), len(points))
     counts = np.maximum(members.sum(axis=1), 1)
-    outside = (~members).T.astype(np.float32)  # (N, G): the points each group's may be covered by
     out = np.zeros((len(groups), len(projections)))
+    if len(groups) == 0:
+        return out
+    # the points by their groups (a class: the points in the same groups; the groups are whole
+    # branches, so a class per branch or fewer): a point is covered from outside a group when a
+    # point of a class outside it covers it
+    rows = np.ascontiguousarray(np.packbits(members, axis=0).T)  # (N, ceil(G / 8)): each point's groups
+    first_of_class, point_class = np.unique(rows.view(np.dtype((np.void, rows.shape[1]))).ravel(), return_index=True,
+                                            return_inverse=True)[1:]
+    point_class = point_class.ravel()
+    outside = (~members[:, first_of_class]).T.astype(np.float32)  # (K, G): the groups each class lies outside
     for v, projection in enumerate(projections):
         i, j, i_in_j, j_in_i = (_overlapping_discs(points, radius, projection, reach_radii) if pairs is None
                                 else pairs[v])
         if len(i) == 0:
             continue
-        # covering[p, q]: q's disc covers p; p of a group is covered when a point outside it covers p
+        # covering[p, k]: a point of class k covers p's disc; p of a group is covered when a point
+        # outside it covers p
         first, second = i_in_j & by[j], j_in_i & by[i]
-        covered, coverer = np.concatenate([i[first], j[second]]), np.concatenate([j[first], i[second]])
-        covering = sparse.csr_matrix((np.ones(len(covered), dtype=np.float32), (covered, coverer)),
-                                     shape=(len(points), len(points)))
-        by_outside = np.asarray(covering @ outside) > 0  # (N, G)
+        covering = np.zeros((len(points), len(first_of_class)), dtype=np.float32)
+        covering[i[first], point_class[j[first]]] = 1.0
+        covering[j[second], point_class[i[second]]] = 1.0
+        by_outside = covering @ outside > 0  # (N, G); sums of a few ones, exact
         out[:, v] = np.count_nonzero(by_outside.T & members, axis=1) / counts
     return out
 
