@@ -1461,11 +1461,13 @@ def _widening_limits(first: float, last: float) -> list[float]:
     return limits + [last]
 
 
-def _skeleton_input(volume: np.ndarray, bridge: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+def _skeleton_input(volume: np.ndarray, bridge: int
+                    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
     """The volume the centerline paths run through (``volume`` dilated by ``bridge`` cells), its
-    voxels' distance from the boundary in voxels when it is cheap to give (None otherwise), and the
+    voxels' distance from the boundary in voxels when it is cheap to give (None otherwise), the
     distance of every voxel of it to the nearest cell outside the undilated ``volume`` (0 for the
-    cells the dilation added), all in ``np.argwhere`` order of the returned volume."""
+    cells the dilation added), all in ``np.argwhere`` order of the returned volume, and its voxels
+    (``np.argwhere``)."""
     grown = dilated(volume, 1)
     shell = grown & ~volume  # the empty cells next to the volume
     paths = grown if bridge == 1 else dilated(volume, bridge) if bridge else volume
@@ -1475,7 +1477,7 @@ def _skeleton_input(volume: np.ndarray, bridge: int) -> tuple[np.ndarray, np.nda
     # or a full 3D distance transform's of the box
     depth = distance_to(shell, voxels)
     dbf = depth + 1.0 if bridge == 1 else depth if bridge == 0 else None  # one dilation adds one cell
-    return paths, dbf, depth
+    return paths, dbf, depth, voxels
 
 
 def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Projection], masks: Sequence[np.ndarray],
@@ -1514,8 +1516,8 @@ def hull_tree(points_mm: np.ndarray, lattice: Lattice, projections: Sequence[Pro
     if len(points_mm) < 2:
         raise ReconstructionError(f"the hull has {len(points_mm)} point(s); a vessel tree needs a skeleton of two or more")
     volume, origin, spacing = checked_occupancy(points_mm, lattice, settings)
-    paths, dbf, depth = _skeleton_input(volume, int(np.floor(settings.bridge_mm / spacing)))
-    skeleton, _ = teasar_skeleton(paths, dbf=dbf)
+    paths, dbf, depth, voxels = _skeleton_input(volume, int(np.floor(settings.bridge_mm / spacing)))
+    skeleton, _ = teasar_skeleton(paths, dbf=dbf, voxels=voxels)
     # the skeleton's voxels among the path volume's (both in C order): their distance to an empty cell
     radius_volume = depth[skeleton[paths]] * spacing
     images = [np.asarray(m, dtype=np.float32) for m in masks]

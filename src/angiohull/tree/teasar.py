@@ -32,7 +32,7 @@ from .voxels import coordinates, dilated, distance_to, path_cost_graph
 __all__ = ["teasar_skeleton"]
 
 def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5, ball_voxels: float = 2.0,
-                    dbf: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    dbf: np.ndarray | None = None, voxels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Centerline paths of a 3D bool volume (module notes).
 
     Parameters
@@ -43,6 +43,8 @@ def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5, ball_voxels:
     dbf : (N,) float array, optional, keyword-only
         The distance from the boundary (voxels) of every voxel of the volume, in ``np.argwhere``
         order, when the caller has it (else computed: to the nearest outside voxel).
+    voxels : (N, 3) int array, optional, keyword-only
+        ``np.argwhere(volume)``, when the caller has it.
 
     Returns
     -------
@@ -56,7 +58,7 @@ def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5, ball_voxels:
     if volume.ndim != 3:
         raise TreeError(f"volume must be a 3D bool array, got shape {volume.shape}")
     skeleton = np.zeros(volume.shape, dtype=bool)
-    voxels = coordinates(volume)
+    voxels = coordinates(volume) if voxels is None else np.asarray(voxels, dtype=np.int64)
     n = len(voxels)
     if n == 0:
         return skeleton, np.zeros(0)
