@@ -46,6 +46,15 @@ def _subtrees(tree: VesselTree) -> list[np.ndarray]:
     return [np.sort(m) for m in members]
 
 
+def _subtree_points(tree: VesselTree, owner: np.ndarray) -> np.ndarray:
+    """(B, N) bool: per branch, the points (``owner``: each point's branch) of its subtree, the rows
+    of ``np.isin(owner, _subtrees(tree)[b])`` without a search per branch."""
+    within = np.eye(tree.n_branches, dtype=bool)  # within[b, c]: c lies in b's subtree
+    for c in range(tree.n_branches - 1, 0, -1):  # children come after their parents: c's row is whole
+        within[tree.branches[c].parent] |= within[c]
+    return within[:, owner]
+
+
 def _overlapping_discs(points: np.ndarray, radius: np.ndarray, projection: Projection,
                        reach_radii: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The pairs (i, j) of points whose projected discs (radius plus half a pixel) may overlap in
@@ -70,9 +79,7 @@ def explained_shares(tree: VesselTree, projections: Sequence[Projection], reach_
     radius of a point outside the subtree plus ``reach_radii`` times its own (0: its centre inside
     the other disc; 0.5: the two discs overlap by at least half its radius; 1: they touch). With
     ``pairs``, the tree's disc pairs per view, they are not searched again (:class:`_DiscPairs`)."""
-    owner = tree.points()[2]
-    return _covered_shares(tree, projections, reach_radii, [np.isin(owner, members) for members in _subtrees(tree)],
-                           pairs=pairs)
+    return _covered_shares(tree, projections, reach_radii, _subtree_points(tree, tree.points()[2]), pairs=pairs)
 
 
 class _DiscPairs:
@@ -237,7 +244,7 @@ def _unreproduced_pruning(tree: VesselTree, projections: Sequence[Projection], o
         reproduced = reproduced_points(tree, projections, own_points_mm, nearest_skeleton, tolerance_mm)
         _, _, owner = tree.points()
         subtrees = _subtrees(tree)
-        shares = np.array([reproduced[np.isin(owner, members)].mean() for members in subtrees])
+        shares = np.array([reproduced[members].mean() for members in _subtree_points(tree, owner)])
         if not (shares[1:] < share).any():
             break  # the coverage is not needed: nothing is unreproduced enough
         if pairs is None:
@@ -291,7 +298,8 @@ def restore_uncovered_branches(tree: VesselTree, alive: np.ndarray, removal_cove
     """
     alive = np.array(alive, dtype=bool)
     removal_cover = np.asarray(removal_cover, dtype=float)
-    subtrees, owner = _subtrees(tree), tree.points()[2]
+    owner = tree.points()[2]
+    subtree_points = _subtree_points(tree, owner)
     if pairs is None:  # the tree stays whole: searched once
         pairs = _DiscPairs(tree, projections, reach_radii).current()
     restored = 0
@@ -299,7 +307,7 @@ def restore_uncovered_branches(tree: VesselTree, alive: np.ndarray, removal_cove
         roots = [b for b in range(1, tree.n_branches) if not alive[b] and alive[tree.branches[b].parent]]
         if not roots:
             break
-        covered = _covered_shares(tree, projections, reach_radii, [np.isin(owner, subtrees[b]) for b in roots],
+        covered = _covered_shares(tree, projections, reach_radii, subtree_points[roots],
                                   by=alive[owner], pairs=pairs).min(axis=1)
         below = covered - removal_cover[roots]
         pick = int(np.argmin(below))
