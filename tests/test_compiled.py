@@ -477,3 +477,34 @@ def test_teasar_graph_equals_the_numpy_path(seed):
             np.testing.assert_array_equal(getattr(got, name), getattr(reference, name))
         assert got.has_sorted_indices == reference.has_sorted_indices
         assert got.has_canonical_format == reference.has_canonical_format
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_teasar_cover_equals_the_numpy_path_and_its_definition(seed):
+    """The TEASAR paths of random volumes (blobs of random voxels; whole-number depths among them,
+    so that many path voxels lie at one distance with different reaches) are the same compiled
+    and NumPy (the k-d tree); and the kernel's answer per voxel is the definition's where it
+    gives one: every path voxel at the least distance reaches it (1), none does (0)."""
+    from angiohull import _numba_kernels
+    from angiohull.tree.teasar import teasar_skeleton
+
+    rng = np.random.default_rng(seed)
+    for trial in range(6):
+        shape = tuple(int(s) for s in rng.integers(6, 24, 3))
+        volume = rng.random(shape) < rng.uniform(0.3, 0.9)
+        voxels = np.argwhere(volume)
+        dbf = (rng.integers(1, 4, len(voxels)).astype(float) if trial % 2 else rng.uniform(0.5, 4.0, len(voxels)))
+        got, reference = _both(lambda: teasar_skeleton(volume, dbf=dbf))
+        np.testing.assert_array_equal(got[0], reference[0])
+        np.testing.assert_array_equal(got[1], reference[1])
+    for trial in range(20):
+        path = rng.integers(0, 12, (int(rng.integers(1, 30)), 3))
+        reach = rng.integers(1, 5, len(path)) * 1.5 + (0.0 if trial % 2 else rng.uniform(0, 1, len(path)))
+        todo = rng.integers(-3, 15, (300, 3))
+        status = _numba_kernels.teasar_cover_hits(path, reach, todo, float(reach.max()))
+        squared = ((todo[:, None, :] - path[None, :, :]) ** 2).sum(axis=2)
+        least = squared == squared.min(axis=1, keepdims=True)
+        within = np.sqrt(squared) <= reach[None, :]
+        assert np.all(within[least.nonzero()][np.repeat(status, least.sum(axis=1)) == 1])
+        assert not np.any(within[least.nonzero()][np.repeat(status, least.sum(axis=1)) == 0])
+        assert np.mean(status == 2) < 0.2

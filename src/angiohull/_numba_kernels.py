@@ -1105,3 +1105,39 @@ def forward_cost_rows(flat, index, deltas, lengths, depth):  # pragma: no cover 
                 e += 1
         indptr[h + 1] = e
     return indptr, tails[:e].copy(), cost[:e].copy()
+
+
+# --- the TEASAR paths' cover (angiohull.tree.teasar.teasar_skeleton) --------------------------------
+
+@numba.njit(**_JIT)
+def teasar_cover_hits(path, reach, todo, largest):  # pragma: no cover - compiled
+    """Per voxel of ``todo`` ((T, 3) int64), whether it lies within the reach of its nearest voxel
+    of ``path`` ((P, 3) int64; ``reach`` (P,)), as the k-d tree's nearest within ``largest`` (the
+    largest reach) decides: 1 where it does whichever of the voxels at the least distance the tree
+    gives, 0 where it does not, 2 where that choice, or a distance within a ten-millionth of a
+    reach, could decide (the k-d tree answers those). Squared distances are whole numbers, exact."""
+    out = np.empty(todo.shape[0], np.int8)
+    bound = largest * largest * (1.0 - 1e-9)
+    for t in range(todo.shape[0]):
+        x, y, z = todo[t, 0], todo[t, 1], todo[t, 2]
+        best = -1
+        low = np.inf
+        high = -np.inf
+        for p in range(path.shape[0]):
+            dx, dy, dz = path[p, 0] - x, path[p, 1] - y, path[p, 2] - z
+            d2 = dx * dx + dy * dy + dz * dz
+            if best < 0 or d2 < best:
+                best = d2
+                low = reach[p]
+                high = reach[p]
+            elif d2 == best:
+                low = min(low, reach[p])
+                high = max(high, reach[p])
+        squared = float(best)
+        if squared > high * high * (1.0 + 1e-9):
+            out[t] = 0
+        elif squared < low * low * (1.0 - 1e-9) and squared < bound:
+            out[t] = 1
+        else:
+            out[t] = 2
+    return out

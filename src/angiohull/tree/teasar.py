@@ -26,6 +26,7 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
+from ..compiled import kernels
 from ..errors import TreeError
 from .voxels import coordinates, dilated, distance_to, path_cost_graph
 
@@ -102,14 +103,26 @@ def teasar_skeleton(volume: np.ndarray, *, ball_scale: float = 1.5, ball_voxels:
         marked[(np.unique(key[path])[:, None] + around[None, :]).ravel()] = True
         return todo[marked[key[todo]]]
 
+    compiled = kernels()
+
     def cover(path: np.ndarray, uncovered: np.ndarray) -> None:
         """Mark the voxels of ``uncovered`` within reach of a voxel of ``path`` (nearest path voxel
-        decides), and the path's own."""
+        decides, as the k-d tree gives it), and the path's own. The compiled kernel decides every
+        voxel whose nearest path voxels all decide alike, clear of the reaches' bounds, by brute
+        force; the k-d tree the rest."""
         largest = float(reach[path].max())
         todo = near(path, uncovered, largest)  # the others are out of reach
-        gap, nearest = cKDTree(voxels[path]).query(voxels[todo], distance_upper_bound=largest)
-        hit = np.isfinite(gap)
-        hit[hit] = gap[hit] <= reach[path][nearest[hit]]
+        if compiled is not None:
+            status = compiled.teasar_cover_hits(voxels[path], reach[path], voxels[todo], largest)
+            hit = status == 1
+            ask = np.flatnonzero(status == 2)
+        else:
+            hit, ask = np.zeros(len(todo), dtype=bool), np.arange(len(todo))
+        if len(ask):
+            gap, nearest = cKDTree(voxels[path]).query(voxels[todo[ask]], distance_upper_bound=largest)
+            found = np.isfinite(gap)
+            found[found] = gap[found] <= reach[path][nearest[found]]
+            hit[ask] = found
         covered[todo[hit]] = True
         covered[path] = True
 
