@@ -43,6 +43,18 @@ def test_parent_and_parent_point_go_together():
         Branch(_line((0, 0, 0), (1, 0, 0), 2), 1.0, parent=-1, parent_point=0)
 
 
+def test_a_branch_under_another_parent_keeps_its_checked_arrays_and_fields():
+    branch = Branch([[0, 0, 0], [1, 0, 0], [2, 1, 0]], [1.0, 0.9, 0.8], parent=3, parent_point=1, name="b")
+    moved = branch._with_parent(np.int64(2))
+    assert (moved.parent, moved.parent_point, moved.name) == (2, 1, "b") and type(moved.parent) is int
+    assert moved.points_mm is branch.points_mm and moved.radius_mm is branch.radius_mm
+    assert not moved.points_mm.flags.writeable and not moved.radius_mm.flags.writeable
+    rebuilt = Branch(branch.points_mm, branch.radius_mm, 2, 1, "b")  # what the checks would give
+    np.testing.assert_array_equal(moved.points_mm, rebuilt.points_mm)
+    np.testing.assert_array_equal(moved.radius_mm, rebuilt.radius_mm)
+    assert moved.points_mm.dtype == rebuilt.points_mm.dtype and moved.radius_mm.dtype == rebuilt.radius_mm.dtype
+
+
 def test_a_tree_has_one_root_listed_first_and_parents_before_children():
     root = Branch(_line((0, 0, 0), (10, 0, 0), 11), 1.0)
     child = Branch(_line((5, 0, 0), (5, 5, 0), 6), 0.5, parent=0, parent_point=5)

@@ -113,6 +113,17 @@ class Branch:
         object.__setattr__(self, "points_mm", _v.readonly_copy(points))
         object.__setattr__(self, "radius_mm", _v.readonly_copy(radius))
 
+    def _with_parent(self, parent: int | None) -> "Branch":
+        """This branch under another parent index (``None`` only for a root; the parent point
+        kept): for the edits that only renumber a tree's branches. Its arrays, checked and
+        read-only already, are shared, not checked and copied again."""
+        out = object.__new__(Branch)
+        for key, value in (("points_mm", self.points_mm), ("radius_mm", self.radius_mm),
+                           ("parent", None if parent is None else int(parent)),
+                           ("parent_point", self.parent_point), ("name", self.name)):
+            object.__setattr__(out, key, value)
+        return out
+
     @property
     def n_points(self) -> int:
         """M, the number of centerline points."""

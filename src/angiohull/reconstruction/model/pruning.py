@@ -29,8 +29,8 @@ def _kept(tree: VesselTree, alive: np.ndarray) -> VesselTree:
     """The tree of the branches where ``alive`` ((B,) bool) holds, in their order (every kept
     branch's parent kept)."""
     index = np.cumsum(alive) - 1
-    return VesselTree(tuple(Branch(b.points_mm, b.radius_mm, None if b.parent is None else int(index[b.parent]),
-                                   b.parent_point, b.name) for b, keep in zip(tree.branches, alive) if keep))
+    return VesselTree(tuple(b._with_parent(None if b.parent is None else int(index[b.parent]))
+                            for b, keep in zip(tree.branches, alive) if keep))
 
 
 def _without(tree: VesselTree, leaf: int) -> VesselTree:
