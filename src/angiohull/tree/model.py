@@ -21,6 +21,8 @@ radius. :meth:`VesselTree.capsules` lists them.
 
 from __future__ import annotations
 
+import copy
+
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -117,11 +119,8 @@ class Branch:
         """This branch under another parent index (``None`` only for a root; the parent point
         kept): for the edits that only renumber a tree's branches. Its arrays, checked and
         read-only already, are shared, not checked and copied again."""
-        out = object.__new__(Branch)
-        for key, value in (("points_mm", self.points_mm), ("radius_mm", self.radius_mm),
-                           ("parent", None if parent is None else int(parent)),
-                           ("parent_point", self.parent_point), ("name", self.name)):
-            object.__setattr__(out, key, value)
+        out = copy.copy(self)  # every field, the arrays shared (a field added later comes along)
+        object.__setattr__(out, "parent", None if parent is None else int(parent))
         return out
 
     @property
