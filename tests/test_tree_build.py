@@ -1172,3 +1172,44 @@ def test_a_skeleton_of_isolated_voxels_is_a_clear_error_not_a_numpy_one():
     skeleton[1, 1, 1] = skeleton[6, 6, 6] = True
     with pytest.raises(TreeError, match="largest part is a single voxel"):
         tree_from_skeleton(skeleton, np.full(2, 0.5), origin_mm=np.zeros(3), spacing_mm=0.5)
+
+
+def test_a_hairpin_at_a_branch_end_is_cut_out_and_the_vessel_runs_straight_on():
+    # one straight vessel along x (radius 1.5 mm) that the fit turned into a hairpin: the parent runs
+    # to x = 20, then 3 mm up a spur in y; its only child starts at the spur's tip, comes back to the
+    # axis at x = 21.5 and runs on to x = 40, with a side branch of its own leaving at x = 30. The
+    # hairpin is cut out: every point ends on the axis, the parent before x = 20, the child going
+    # on from where it ends with points at most 0.5 mm apart; the side branch leaves from (30, 0, 0)
+    # still. A child leaving a branch's end at 60 degrees, and a hairpin-like turn where two children
+    # leave the end (a bifurcation), are left as they are.
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays
+
+    axis = _line((0, 0, 0), (20, 0, 0))
+    parent = np.vstack([axis, _line((20, 0, 0), (20, 3, 0))[1:]])
+    child = np.vstack([_line((20, 3, 0), (21.5, 0, 0)), _line((21.5, 0, 0), (40, 0, 0))[1:]])
+    at = int(np.argmin(np.linalg.norm(child - (30, 0, 0), axis=1)))
+    side = _line((30, 0, 0), (30, 0, 12))
+    tree = VesselTree((Branch(parent, 1.5, name="b0"), Branch(child, 1.5, parent=0, parent_point=len(parent) - 1, name="b1"),
+                       Branch(side, 0.8, parent=1, parent_point=at, name="b2")))
+    step = TREE_SETTINGS.point_step_mm
+    out, cut, origin = _Arrays.of(tree).without_hairpins(TREE_SETTINGS.fold_bend_deg, TREE_SETTINGS.hairpin_reach_radii,
+                                                         step)
+    assert cut == 1
+    trunk, rest = out.points[out.span(0)], out.points[out.span(1)]
+    np.testing.assert_allclose(np.vstack([trunk, rest])[:, 1:], 0.0, atol=1e-9)
+    assert trunk[-1, 0] <= 20.0 and out.parent_points[1] == len(trunk) - 1
+    np.testing.assert_array_equal(rest[0], trunk[-1])
+    assert np.all(np.diff(rest[:, 0]) > 0) and np.diff(rest[:, 0]).max() <= step + 1e-9 and rest[-1, 0] == 40.0
+    np.testing.assert_array_equal(out.points[out.anchor(2)], (30.0, 0.0, 0.0))
+    np.testing.assert_array_equal(out.points[out.span(2)], side)
+    # the map back: kept points are the same points, the chord's are new
+    kept = origin >= 0
+    np.testing.assert_array_equal(out.points[kept], _Arrays.of(tree).points[origin[kept]])
+    # a plain turn of 60 degrees at the end, and a bifurcation at the end: nothing cut
+    turned = _line((20, 0, 0), (20 + 10 * np.cos(np.radians(60)), 10 * np.sin(np.radians(60)), 0))
+    plain = VesselTree((Branch(axis, 1.5, name="b0"), Branch(turned, 1.5, parent=0, parent_point=len(axis) - 1, name="b1")))
+    assert _Arrays.of(plain).without_hairpins(90.0, 3.0, step)[1] == 0
+    fork = VesselTree((Branch(parent, 1.5, name="b0"),
+                       Branch(child, 1.5, parent=0, parent_point=len(parent) - 1, name="b1"),
+                       Branch(_line((20, 3, 0), (20, 3, 10)), 1.0, parent=0, parent_point=len(parent) - 1, name="b2")))
+    assert _Arrays.of(fork).without_hairpins(90.0, 3.0, step)[1] == 0
