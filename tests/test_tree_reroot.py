@@ -225,3 +225,47 @@ def test_a_roots_start_whose_end_cap_reaches_past_its_first_junction_keeps_the_r
     side = np.column_stack([np.full(41, 8.5), np.arange(41) * 0.5, np.zeros(41)])
     tree = VesselTree((Branch(points, radius, name="trunk"), Branch(side, 0.8, parent=0, parent_point=17)))
     assert _rooted_at_ostium(_Arrays.of(tree), TREE_SETTINGS)[1] == 0.0
+
+
+def _fork(first_radius: float, first_turn_deg: float, second_radius: float) -> VesselTree:
+    """A 10 mm trunk along x (radius 1.5) that goes on into ``first`` (``first_radius``, turning
+    ``first_turn_deg`` in the x-y plane), with ``second`` (``second_radius``) straight on along x
+    as its child at the trunk's end; 10 mm each, points every 0.5 mm."""
+    s = np.arange(21) * 0.5
+    turn = np.radians(first_turn_deg)
+    trunk_and_first = np.vstack([np.column_stack([s - 10.0, 0 * s, 0 * s]),
+                                 np.column_stack([s[1:] * np.cos(turn), s[1:] * np.sin(turn), 0 * s[1:]])])
+    radius = np.concatenate([np.full(21, 1.5), np.full(20, first_radius)])
+    second = np.column_stack([s, 0 * s, 0 * s])
+    return VesselTree((Branch(trunk_and_first, radius, name="b0"),
+                       Branch(second, second_radius, parent=0, parent_point=20, name="b1")))
+
+
+@pytest.mark.parametrize("first_radius, turn, second_radius, switched", [
+    (0.8, 90.0, 1.4, True),  # the tree went into a thin side branch at 90 degrees; the wide vessel runs straight on
+    (1.5, 40.0, 0.9, False),  # straight on is better by the score (1 + 0.3 against 0.77 + 0.5), but narrower
+])
+def test_traced_again_without_narrower_a_continuation_changes_only_to_a_vessel_at_least_as_wide(
+        first_radius, turn, second_radius, switched):
+    tree = _fork(first_radius, turn, second_radius)
+    straight = np.column_stack([np.arange(41) * 0.5 - 10.0, np.zeros(41), np.zeros(41)])
+    # the plain rule (the skeleton's) takes the better score either way: straight on
+    plain = rerooted(tree, 0, 0, window_mm=3.0)
+    np.testing.assert_allclose(plain.root.points_mm, straight)
+    kept = rerooted(tree, 0, 0, window_mm=3.0, narrower=False)
+    if switched:
+        np.testing.assert_allclose(kept.root.points_mm, straight)
+    else:
+        np.testing.assert_allclose(kept.root.points_mm, tree.root.points_mm)
+    assert _points(kept) == _points(tree) and kept.length_mm == pytest.approx(tree.length_mm)
+
+
+def test_traced_again_without_narrower_from_a_root_at_a_junction_the_root_keeps_its_way():
+    # the root starts where a side branch leaves (its head cut): no way in to continue, so where the
+    # tree went decides, not the widths (the plain rule takes the wider one)
+    s = np.arange(21) * 0.5
+    root = Branch(np.column_stack([s, 0 * s, 0 * s]), 1.0, name="b0")
+    side = Branch(np.column_stack([0 * s, s, 0 * s]), 1.6, parent=0, parent_point=0, name="b1")
+    tree = VesselTree((root, side))
+    np.testing.assert_allclose(rerooted(tree, 0, 0, window_mm=3.0).root.points_mm, side.points_mm)
+    np.testing.assert_allclose(rerooted(tree, 0, 0, window_mm=3.0, narrower=False).root.points_mm, root.points_mm)

@@ -398,10 +398,11 @@ def _nearer(distance: np.ndarray, queries: np.ndarray, added: np.ndarray) -> np.
 
 
 def _branches_from(points: np.ndarray, radius: np.ndarray, neighbours: list[list[int]], root: int,
-                   window: float, spacing: float) -> VesselTree:
+                   window: float, spacing: float, went_on: dict[tuple[int, int], int] | None = None) -> VesselTree:
     """The tree of a graph without cycles, from ``root`` (module notes, step 5); ``window`` (the
     continuation's) and ``spacing`` (between neighbouring nodes) in the units of ``points``: voxels
-    from :func:`tree_from_skeleton`, mm from :func:`rerooted`."""
+    from :func:`tree_from_skeleton`, mm from :func:`rerooted`. ``went_on``: where a path from a
+    node through the next went on before, kept unless a better continuation is at least as wide."""
     n = len(points)
     ahead_nodes = int(np.ceil(window / spacing)) + 2
     branches: list[Branch] = []
@@ -420,7 +421,8 @@ def _branches_from(points: np.ndarray, radius: np.ndarray, neighbours: list[list
             if len(onward) == 1:
                 nxt = onward[0]
             else:
-                nxt = _continuation(points, radius, neighbours, visited, path, onward, window, ahead_nodes)
+                before = None if went_on is None else went_on.get((path[-2] if len(path) >= 2 else -1, here))
+                nxt = _continuation(points, radius, neighbours, visited, path, onward, window, ahead_nodes, before)
                 for w in onward:
                     if w != nxt:
                         visited[w] = True
@@ -438,14 +440,17 @@ def _branches_from(points: np.ndarray, radius: np.ndarray, neighbours: list[list
     return VesselTree(tuple(kept))
 
 
-def rerooted(tree: VesselTree, branch: int, point: int, *, window_mm: float = 3.0) -> VesselTree:
+def rerooted(tree: VesselTree, branch: int, point: int, *, window_mm: float = 3.0,
+             narrower: bool = True) -> VesselTree:
     """The same points and radii as a tree rooted at point ``point`` of branch ``branch``.
 
     The tree's points become a graph (consecutive points of a branch, and each child's first point
     with its parent point, merged where they coincide); its branches are then traced again from
     the new root as in step 5 of the module notes (at a junction, and at an interior root, a
     branch continues into the neighbour that best continues it, judged over ``window_mm``; the
-    others start children). Branch names are ``b0, b1, ...`` in the new order.
+    others start children). Without ``narrower``, a junction where the tree's branch went on keeps
+    that continuation unless the better one is at least as wide (its mean radius over the window).
+    Branch names are ``b0, b1, ...`` in the new order.
     """
     offsets = np.concatenate([[0], np.cumsum([b.n_points for b in tree.branches])]).astype(np.int64)
     points, radius, _ = tree.points()
@@ -472,7 +477,17 @@ def rerooted(tree: VesselTree, branch: int, point: int, *, window_mm: float = 3.
             join(offsets[b.parent] + b.parent_point, offsets[i])
     spacing = float(np.median(np.concatenate(steps))) if steps else 1.0
     root = int(node[offsets[branch] + point])
-    return _branches_from(points, radius, neighbours, root, window_mm, spacing)
+    went_on = None
+    if not narrower:  # where each branch went on: (a, b) -> c for its consecutive points a, b, c, either way
+        went_on = {}
+        for i, b in enumerate(tree.branches):
+            ids = node[offsets[i]:offsets[i + 1]]
+            for a, here, c in zip(ids[:-2], ids[1:-1], ids[2:]):
+                went_on[(int(a), int(here))] = int(c)
+                went_on[(int(c), int(here))] = int(a)
+        if point + 1 < tree.branches[branch].n_points:  # from the root: where its branch went
+            went_on[(-1, root)] = int(node[offsets[branch] + point + 1])
+    return _branches_from(points, radius, neighbours, root, window_mm, spacing, went_on)
 
 
 def _follow(neighbours: list[list[int]], visited: np.ndarray, start: int, first: int, nodes: int) -> list[int]:
@@ -488,8 +503,9 @@ def _follow(neighbours: list[list[int]], visited: np.ndarray, start: int, first:
 
 
 def _continuation(points: np.ndarray, radius: np.ndarray, neighbours: list[list[int]], visited: np.ndarray,
-                  path: list[int], onward: list[int], window: float, nodes: int) -> int:
-    """The outgoing neighbour that best continues ``path`` (module notes, step 5)."""
+                  path: list[int], onward: list[int], window: float, nodes: int, before: int | None = None) -> int:
+    """The outgoing neighbour that best continues ``path`` (module notes, step 5); ``before``, one
+    of ``onward``, is kept unless the best is at least as wide (:func:`rerooted`)."""
     here = path[-1]
     back = _window(points, path[::-1], window)
     incoming = points[here] - points[back[-1]]
@@ -507,7 +523,10 @@ def _continuation(points: np.ndarray, radius: np.ndarray, neighbours: list[list[
         norm = math.sqrt(_dot3(incoming, incoming) * _dot3(direction, direction))
         cosine = _dot3(incoming, direction) / norm if norm > 0 else 0.0
         scores.append(round(cosine + 0.5 * width / widest, _TIE_DECIMALS))
-    return onward[int(np.argmax(scores))]
+    best = int(np.argmax(scores))
+    if before in onward and (widths[best] < widths[onward.index(before)] or len(path) < 2):
+        return before  # (at the root there is no way in to continue: where the tree went)
+    return onward[best]
 
 
 def _dot3(a: np.ndarray, b: np.ndarray) -> float:
