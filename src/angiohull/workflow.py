@@ -340,6 +340,7 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
             "pruned_branches_put_back": int(build.restored),
             "unexplained_pixels_matched_again": int(build.rematched_pixels),
             "redundant_branches_replaced": int(build.replaced_branches),
+            "runs_slid_along_rays": int(build.slid_runs),  # two views: the kept tree's last step
             "contradicted_stretch_points_removed": int(build.stretch_points_removed),
             "rebuilds": int(build.rebuilds),
             "timings_s": {k: float(v) for k, v in build.timings_s.items()},

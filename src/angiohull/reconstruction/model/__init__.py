@@ -106,6 +106,17 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    angiograms of the benchmark, every hypothesis of every tree tried and the best kept put the
    centerline 0.590 mm off against 0.575 without any). The hypotheses of every matching's tree are
    built after those trees, each in a process of its own (as the alternative matchings' trees).
+   **Last, with two views, the kept tree slid along the rays** (``slide``, :mod:`.sliding`): a
+   point moved along view A's ray through it stays where A sees it, and moves in view B along
+   B's epipolar line. Where B's mask holds a piece of at least ``SlideSettings.min_pixels`` pixels
+   that the tree's tubes leave unexplained and one branch alone comes near it, the run of that
+   branch's points by the piece (junctions excepted) is moved along A's rays by the offsets, linear
+   between knots 2 mm apart, that best explain B's mask (its pixels covered less the tubes'
+   pixels outside it, less ``length_px_per_mm`` per mm the run grows), kept where that gains at
+   least ``min_gain`` of the piece's pixels. The case: a vessel one view shows folded on itself,
+   its two arms merged into one band; that view's skeleton cuts across the fold inside its tip,
+   so the matching pairs the other view's clean band with the cut, and the tree, right in the
+   other view, lies at the wrong depth along its rays and leaves the fold's tip unexplained.
 5. **Lumen points**: the lattice points inside the fitted tree's tubes.
 
 Arrays and projections in, points and a tree out; nothing here reads files.
@@ -130,6 +141,7 @@ from .graph2d import CenterlineGraph2D, centerline_graph
 from .agreement import mask_agreement, suspect_branches, tube_silhouette
 from .matching import (MATCH_SETTINGS, Avoid, MatchSettings, ViewData, anchored_match, mask_core, match_pixels,
                        with_width_bias)
+from .sliding import SLIDE_SETTINGS, SlideSettings, slid_along_rays
 from .forking import _can_fork, _ForkedBuilds, _in_processes  # noqa: F401 (the tests reach them here)
 from .tubes import lattice_points_in_tubes
 # step 4's rules (the tests reach the private ones here too)
@@ -199,6 +211,9 @@ class ModelSettings:
     # length of the matchings' own trees (of trees that explain the masks alike, the wrong pairing's is longer)
     length_weight: float = 0.1
     redundant_weight: float = 0.1
+    # two views, the kept tree's runs slid along one view's rays where the other view's mask holds a piece the tree
+    # leaves unexplained (:mod:`.sliding`; None: not)
+    slide: SlideSettings | None = field(default_factory=lambda: SLIDE_SETTINGS)
 
 
 MODEL_SETTINGS = ModelSettings()
@@ -230,6 +245,7 @@ class ModelBuild:
     kept_hypothesis: int | None = None  # ... the one kept (None: a matching's own tree)
     width_bias_px: float | None = None  # two views: how much wider view 1 shows the vessels (half-width, px) ...
     width_bias_taken: bool = False  # ... and whether it was taken off where the radii compare (matching notes, 7.)
+    slid_runs: int = 0  # two views: runs of the kept tree moved along one view's rays (:mod:`.sliding`)
 
 
 def _viewing_direction(projection: Projection) -> np.ndarray:
@@ -683,6 +699,13 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
         f"{counts['inner_removed']} branches that carry others, {counts['rematched']} unexplained pixels matched "
         f"again, replacing {counts['replaced']} branches; {counts['rebuilds']} rebuilds)")
 
+    slid = 0
+    if len(projections) == 2 and settings.slide is not None:  # the kept tree's runs slid along rays (notes)
+        start = time.perf_counter()
+        tree, slid = slid_along_rays(tree, projections, masks, settings=settings.slide)
+        timings["slide"] = time.perf_counter() - start
+        if slid:
+            say(f"{slid} runs of the tree moved along one view's rays to explain the other view's mask")
     start = time.perf_counter()
     lumen = tree_lumen_points(tree, lattice, settings.lumen_margin_steps * lattice.spacing_mm)
     timings["lumen"] = time.perf_counter() - start
@@ -699,5 +722,5 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
                        hypotheses=tuple((h.correspondence.claim_cost, h.avoided_mm, h.agreement, h.score)
                                         for h in hypotheses),
                        kept_hypothesis=next((j for j, h in enumerate(hypotheses) if h is best), None),
-                       width_bias_px=width_bias[0], width_bias_taken=width_bias[1])
+                       width_bias_px=width_bias[0], width_bias_taken=width_bias[1], slid_runs=slid)
     return lumen, tree, build
