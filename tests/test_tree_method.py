@@ -1293,7 +1293,10 @@ def test_of_two_views_the_tree_kept_is_the_one_that_agrees_best_with_the_masks(m
     its tree explains the masks better. (Without the hypotheses of a wrong pairing: see the next
     test.)"""
     truth, projections, masks = _generated("rca", 7000)
-    monkeypatch.setitem(model.model_tree.__kwdefaults__, "settings", replace(MODEL_SETTINGS, hypotheses=0))
+    # the tree kept as the judge kept it: without the slide along the rays that follows the judge
+    # (reconstruction.model.sliding, tested on its own)
+    monkeypatch.setitem(model.model_tree.__kwdefaults__, "settings", replace(MODEL_SETTINGS, hypotheses=0,
+                                                                             slide=None))
     result = reconstruct(projections, masks, method="tree", centerlines=False)
     build = result.model_build
     assert build.claim_costs == (MODEL_SETTINGS.match.claim_cost,) + MODEL_SETTINGS.alternative_claim_costs
@@ -1304,7 +1307,7 @@ def test_of_two_views_the_tree_kept_is_the_one_that_agrees_best_with_the_masks(m
     assert build.mask_agreement[kept] == max(build.mask_agreement)  # here the better agreement decides alone
     assert mask_agreement(result.tree, projections, masks).mean() == pytest.approx(build.mask_agreement[kept])
     monkeypatch.setitem(model.model_tree.__kwdefaults__, "settings",
-                        replace(MODEL_SETTINGS, alternative_claim_costs=(), hypotheses=0))
+                        replace(MODEL_SETTINGS, alternative_claim_costs=(), hypotheses=0, slide=None))
     alone = reconstruct(projections, masks, method="tree", centerlines=False)
     assert alone.model_build.claim_costs == () and alone.model_build.kept_claim_cost is None
     chosen, single = tree_scores(result.tree, truth), tree_scores(alone.tree, truth)
