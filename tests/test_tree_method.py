@@ -1498,3 +1498,4 @@ def test_the_alternative_tree_built_in_a_forked_process_is_the_one_built_here(mo
     np.testing.assert_array_equal(forked.tree.points()[0], sequential.tree.points()[0])
     assert forked.model_build.mask_agreement == sequential.model_build.mask_agreement
     assert isinstance(_can_fork(), bool)
+

@@ -198,7 +198,9 @@ def slid_along_rays(tree: VesselTree, projections: Sequence[Projection], masks: 
             if picture is None:
                 picture = _Picture(branches, view, mask, step_mm)
             branch, samples = branches[k], picture.samples[k]
-            free_end = run[-1] == branch.n_points - 1
+            # the branch's end moves only where it is free (no child leaves it: its first point is that end)
+            free_end = run[-1] == branch.n_points - 1 and all(
+                tree_branch.parent != k or tree_branch.parent_point != branch.n_points - 1 for tree_branch in branches)
             arc = branch.arc_length_mm
             lo_mm, hi_mm = arc[run[0]], arc[run[-1]]
             sample_arc = samples.arc_length_mm
