@@ -162,7 +162,11 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    where the skeleton's branch had turned into the side branch (the root of left tree 0 of the QCA
    benchmark into the first obtuse marginal, at 90 degrees, the circumflex going on as its child)
    the side branch's junction then sat at the corner the turn cut, 3 mm before the true one, where
-   step 5 cannot move it (a child running along its parent is left as it is). Since 2026-12-07; on
+   step 5 cannot move it (a child running along its parent is left as it is). With three views or
+   more: with two, the fitted points hold the depth errors of the pairing, and traced again they
+   moved the two-view trees of the tree method's benchmark farther from the truth as often as
+   nearer (with the slide along the rays of :mod:`.model.sliding`, 15 of the 16 exact-mask trees
+   it changed farther, by up to 0.2 mm). Since 2026-12-07; on
    the QCA benchmark's 60 trees in three views from exact masks (the refined hull), with the
    hairpins of step 3: branch lengths within 1 % or 1 mm 80.9 -> 84.8 %, bifurcation angles MAE
    2.45 -> 2.32 degrees (405 -> 416 measured); 60 other trees 81.2 -> 84.4 %, 2.47 -> 2.21 degrees.
@@ -1738,7 +1742,9 @@ def _fitted(raw: VesselTree, projections: Sequence[Projection], images: Sequence
     # from the points beyond, on the tree as rooted (points keep their places when it is rooted again)
     folded_mm = arrays.points[_fold_stretches(arrays, held, settings.fold_bend_deg)]
     arrays, rerooted_mm = _rooted_at_ostium(arrays, settings, held)
-    arrays = _Arrays.of(rerooted(arrays.tree(), 0, 0, window_mm=settings.skeleton.direction_window_mm, narrower=False))
+    if len(projections) >= 3:  # traced again on the fitted points (notes, step 4; with two views the skeleton's stand)
+        arrays = _Arrays.of(rerooted(arrays.tree(), 0, 0, window_mm=settings.skeleton.direction_window_mm,
+                                     narrower=False))
     reread = np.zeros(len(arrays.points), dtype=bool)
     if len(folded_mm):
         reread = cKDTree(folded_mm).query(arrays.points)[0] < 1e-6
