@@ -306,7 +306,9 @@ class TreeSettings:
     fold_bend_deg: float = 90.0  # a centerline turning more than this between the chords a radius either side folds
     # (a tube cannot): its cross-sections there are read along the vessels; see the notes, step 4
     hairpin_reach_radii: float = 3.0  # a branch's only child turning back by more than fold_bend_deg at its end: the
-    # hairpin cut out over at most this many parent radii of either (notes, step 3)
+    # hairpin cut out over at most this many parent radii of either (notes, step 3), ...
+    hairpin_width_ratio: float = 0.6  # ... where the child is at least this share of the branch's width (a fold of
+    # one vessel; a narrower child is a side branch leaving where the branch ends, e.g. the conus by the ostium)
     end_reach_radii: float = 3.0  # how far a tip may move (either way), in radii
     ostium_window_mm: float = 3.0  # the ostium is the tip whose radius, averaged over this much arc, is largest,
     ostium_inner_ratio: float = 1.3  # ... or a point inside a branch this many times wider still
@@ -553,14 +555,17 @@ class _Arrays:
         return (_Arrays(self.points[first:], self.radius[first:], np.cumsum(counts) - counts, counts,
                         list(self.parents), parent_points, list(self.names)), first)
 
-    def without_hairpins(self, min_turn_deg: float, reach_radii: float,
-                         step_mm: float) -> tuple["_Arrays", int, np.ndarray]:
+    def without_hairpins(self, min_turn_deg: float, reach_radii: float, step_mm: float,
+                         width_ratio: float = 0.0) -> tuple["_Arrays", int, np.ndarray]:
         """The arrays with each hairpin at a branch's end cut out (module notes, step 3): where a
         branch's only child leaves its last point turning back by more than ``min_turn_deg`` (the
         chords over one radius, at least 1 mm, either side), the branch's last stretch and the
         child's first, each at most ``reach_radii`` parent radii of arc, are replaced by the chord
         between the pair of their points that leaves the path turning least (the angles at both of
-        its ends, the chords over one radius behind and ahead), points every ``step_mm``. Returns
+        its ends, the chords over one radius behind and ahead), points every ``step_mm``; not where
+        the child is narrower than ``width_ratio`` times the branch (their median radii over the
+        next ``reach_radii`` radii of arc beyond the stretches, or over the whole branch where it
+        is shorter): a side branch leaving where the branch ends is no fold. Returns
         the arrays, the number of hairpins cut and, per point of the new arrays, the index of the
         point it was (-1: a point of a chord)."""
         points = [self.points[self.span(b)] for b in range(len(self.counts))]
@@ -582,6 +587,12 @@ class _Arrays:
             if _angle_deg(into, out) <= min_turn_deg:
                 continue
             reach = reach_radii * r
+            if width_ratio > 0:
+                before = radius[p][(parent_arc >= parent_arc[k] - 2 * reach) & (parent_arc < parent_arc[k] - reach)]
+                beyond = radius[b][(child_arc > reach) & (child_arc <= 2 * reach)]
+                width = float(np.median(before if len(before) else radius[p]))
+                if float(np.median(beyond if len(beyond) else radius[b])) < width_ratio * width:
+                    continue
             tail = np.flatnonzero(parent_arc >= parent_arc[k] - reach)
             tail = tail[tail >= 1]  # the branch keeps two points or more
             head = np.flatnonzero(child_arc <= reach)
@@ -1700,7 +1711,8 @@ def _fitted(raw: VesselTree, projections: Sequence[Projection], images: Sequence
 
     measured: tuple = (None,)
     for iteration in range(settings.iterations):
-        arrays, _, _ = arrays.without_hairpins(settings.fold_bend_deg, settings.hairpin_reach_radii, step)
+        arrays, _, _ = arrays.without_hairpins(settings.fold_bend_deg, settings.hairpin_reach_radii, step,
+                                                  settings.hairpin_width_ratio)
         if iteration == settings.iterations - 1 and len(projections) >= 3:
             # the last fit without the branches no view sees; with two views a phantom and the true
             # branch it mirrors overlap each other in both, and nothing tells them apart
@@ -1733,7 +1745,8 @@ def _fitted(raw: VesselTree, projections: Sequence[Projection], images: Sequence
         for b in range(len(arrays.counts)):
             arrays.reattach(b)
         arrays.smooth(0.5 * settings.smoothing_mm, step)
-    arrays, _, origin = arrays.without_hairpins(settings.fold_bend_deg, settings.hairpin_reach_radii, step)
+    arrays, _, origin = arrays.without_hairpins(settings.fold_bend_deg, settings.hairpin_reach_radii, step,
+                                                  settings.hairpin_width_ratio)
     held = np.where(origin >= 0, held[np.maximum(origin, 0)], False)  # a chord's points: as if seen
     arrays.smooth_quadratic(settings.final_window_mm, settings.final_smoothing_mm, step)
     _smooth_radii(arrays, settings.radius_smoothing_mm, step)
