@@ -1193,7 +1193,7 @@ def test_a_hairpin_at_a_branch_end_is_cut_out_and_the_vessel_runs_straight_on():
                        Branch(side, 0.8, parent=1, parent_point=at, name="b2")))
     step = TREE_SETTINGS.point_step_mm
     out, cut, origin = _Arrays.of(tree).without_hairpins(TREE_SETTINGS.fold_bend_deg, TREE_SETTINGS.hairpin_reach_radii,
-                                                         step)
+                                                         step, TREE_SETTINGS.hairpin_width_ratio)
     assert cut == 1
     trunk, rest = out.points[out.span(0)], out.points[out.span(1)]
     np.testing.assert_allclose(np.vstack([trunk, rest])[:, 1:], 0.0, atol=1e-9)
@@ -1213,3 +1213,36 @@ def test_a_hairpin_at_a_branch_end_is_cut_out_and_the_vessel_runs_straight_on():
                        Branch(child, 1.5, parent=0, parent_point=len(parent) - 1, name="b1"),
                        Branch(_line((20, 3, 0), (20, 3, 10)), 1.0, parent=0, parent_point=len(parent) - 1, name="b2")))
     assert _Arrays.of(fork).without_hairpins(90.0, 3.0, step)[1] == 0
+
+
+def test_a_narrow_side_branch_turning_back_at_a_branch_end_is_no_hairpin():
+    # the skeleton's root can run from inside a vessel back to its ostium, where a side branch
+    # leaves: the RCA (radius 2.2 mm) along x from x = 40 back to x = 0, and the conus (0.9 mm)
+    # leaving its last point turning back by 120 degrees. That is a junction at the branch's end,
+    # not a fold of one vessel: nothing is cut, the RCA keeps its last 6.6 mm (three radii) to
+    # x = 0. Without the width rule (ratio 0) the same turn is cut as a hairpin, and a child as wide
+    # as the branch (a fold) still is with it.
+    from angiohull.reconstruction.vessel_tree import TREE_SETTINGS, _Arrays
+
+    rca = _line((40, 0, 0), (0, 0, 0))
+    turn = np.radians(120.0)  # between the RCA's way (-x) and the conus's
+    conus = _line((0, 0, 0), (-25 * np.cos(turn), 25 * np.sin(turn), 0))
+    step = TREE_SETTINGS.point_step_mm
+
+    def tree(child_radius_mm: float) -> VesselTree:
+        return VesselTree((Branch(rca, 2.2, name="b0"),
+                           Branch(conus, child_radius_mm, parent=0, parent_point=len(rca) - 1, name="b1")))
+
+    ratio = TREE_SETTINGS.hairpin_width_ratio
+    assert 0.9 / 2.2 < ratio <= 1.0
+    arrays = _Arrays.of(tree(0.9))
+    out, cut, origin = arrays.without_hairpins(TREE_SETTINGS.fold_bend_deg, TREE_SETTINGS.hairpin_reach_radii, step, ratio)
+    assert cut == 0
+    np.testing.assert_array_equal(out.points, arrays.points)
+    np.testing.assert_array_equal(origin, np.arange(len(arrays.points)))
+    # the rule off: the end is cut back (the RCA then stops short of x = 0)
+    out, cut, _ = arrays.without_hairpins(TREE_SETTINGS.fold_bend_deg, TREE_SETTINGS.hairpin_reach_radii, step, 0.0)
+    assert cut == 1 and out.points[out.span(0)][-1, 0] > 0.0
+    # a child as wide as the branch turning back so: a fold, cut with the rule on
+    assert _Arrays.of(tree(2.2)).without_hairpins(TREE_SETTINGS.fold_bend_deg, TREE_SETTINGS.hairpin_reach_radii, step,
+                                                  ratio)[1] == 1

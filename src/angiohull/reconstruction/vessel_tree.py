@@ -115,7 +115,11 @@ views) into a :class:`~angiohull.tree.VesselTree`:
    their points that leaves the path turning least (the angles at the chord's two ends), points
    every ``point_step_mm`` (since 2026-12-07; on the QCA benchmark's 60 trees in three views, from
    exact masks, the refined hull: left tree 4's circumflex read 4.3 mm long and its first marginal
-   6.3 mm, the spur 3 mm out beside the true junction).
+   6.3 mm, the spur 3 mm out beside the true junction). A fold is one vessel: not where the child
+   is narrower than ``hairpin_width_ratio`` times the branch (median radii over the next
+   ``hairpin_reach_radii`` radii beyond the stretches), a side branch leaving where the branch
+   ends (since 2026-12-07: a root traced from inside the RCA back to its ostium, the conus leaving
+   its last point turning back, lost 5 mm of the RCA's start to the cut).
 4. **Root.** The skeleton's root is its widest tip by the voxels' depth, which the occupancy
    gives only coarsely, and the stub from the ostium to the first side branch can be short enough
    to go as a spur. Once the radii are fitted, the ostium is the tip (the root's start or a
