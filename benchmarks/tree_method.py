@@ -452,8 +452,9 @@ def main() -> None:
     stage_names = list(timing[0]["stages_s"]) if timing else []
     lines += [] if not timing else ["## Time of the tree method, two 512 x 512 views", "",
               f"One process, medians of {args.repeats} runs per case after a first run (imports done); seconds. "
-              f"Load average as it began: {load:.2f} on {os.cpu_count()} cores (above 1, other work shared the machine "
-              "and these are upper bounds).", "",
+              f"Load average as it began: {load:.2f} on {os.cpu_count()} cores ("
+              + ("above 1: other work shared the machine, and these are upper bounds" if load > 1.0 else
+                 "below 1: the machine was otherwise idle") + ").", "",
               "| tree | total | " + " | ".join(stage_names) + " |", "|---|---|" + "---|" * len(stage_names)]
     for t in timing:
         lines.append(f"| {t['kind']} seed {t['seed']} | **{t['total_s']:.2f}** | "
