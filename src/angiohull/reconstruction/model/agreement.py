@@ -14,6 +14,7 @@ the pixel centres (integer ``(u, v)``).
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Sequence
 
 import numpy as np
@@ -36,6 +37,38 @@ def _samples(tree: VesselTree, step_mm: float) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(points), np.concatenate(radii)
 
 
+@lru_cache(maxsize=64)
+def _offsets(reach: int) -> tuple[np.ndarray, np.ndarray]:
+    """The pixel offsets (du, dv) of the square of half-edge ``reach``."""
+    du, dv = np.meshgrid(np.arange(-reach, reach + 1), np.arange(-reach, reach + 1))
+    return du.ravel(), dv.ravel()
+
+
+def _disc_groups(uv: np.ndarray, rho: np.ndarray, shape: tuple[int, int]):
+    """The pixels within ``rho`` of each ``uv`` (the discs of :func:`tube_silhouette`, on the pixel
+    centres, inside an image of ``shape``), one group of samples of one reach at a time:
+    ``(samples (S,), flat pixel indices, (S, offsets) bool of the offsets inside)``."""
+    reach = np.ceil(rho).astype(np.int64)
+    for k in np.unique(reach):
+        at = np.flatnonzero(reach == k)
+        du, dv = _offsets(int(k))
+        cu = np.rint(uv[at, 0]).astype(np.int64)[:, None] + du[None, :]
+        cv = np.rint(uv[at, 1]).astype(np.int64)[:, None] + dv[None, :]
+        inside = (cu - uv[at, 0][:, None]) ** 2 + (cv - uv[at, 1][:, None]) ** 2 <= rho[at][:, None] ** 2
+        inside &= (cu >= 0) & (cv >= 0) & (cu < shape[1]) & (cv < shape[0])
+        yield at, cv[inside] * shape[1] + cu[inside], inside
+
+
+def _disc_pixels(uv: np.ndarray, rho: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Flat indices into an image of ``shape`` of the pixels of :func:`_disc_groups`, and the
+    sample each belongs to (one entry per sample and pixel: a pixel two discs cover comes twice)."""
+    pixels, owners = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
+    for at, flat, inside in _disc_groups(uv, rho, shape):
+        pixels.append(flat)
+        owners.append(np.broadcast_to(at[:, None], inside.shape)[inside])
+    return np.concatenate(pixels), np.concatenate(owners)
+
+
 def tube_silhouette(tree: VesselTree, projection: Projection, *, step_mm: float = 0.25) -> np.ndarray:
     """The pixels of ``projection``'s image (its ``image_shape``) that the tree's tubes cover:
     within the projected radius of a centerline sample taken every ``step_mm`` (> 0) of arc
@@ -51,16 +84,9 @@ def tube_silhouette(tree: VesselTree, projection: Projection, *, step_mm: float 
     points, radii = points[front], radii[front]
     uv = projection.project(points)
     rho = radii * max(projection.focal_lengths_px) / projection.depth_mm(points)
-    reach = np.ceil(rho).astype(np.int64)
-    for r in np.unique(reach):  # one offset grid per reach: (samples, offsets) at once
-        at = np.flatnonzero(reach == r)
-        du, dv = np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1))
-        du, dv = du.ravel(), dv.ravel()
-        cu = np.rint(uv[at, 0]).astype(np.int64)[:, None] + du[None, :]
-        cv = np.rint(uv[at, 1]).astype(np.int64)[:, None] + dv[None, :]
-        inside = (cu - uv[at, 0][:, None]) ** 2 + (cv - uv[at, 1][:, None]) ** 2 <= rho[at][:, None] ** 2
-        inside &= (cu >= 0) & (cv >= 0) & (cu < shape[1]) & (cv < shape[0])
-        image[cv[inside], cu[inside]] = True
+    pixels = image.reshape(-1)  # a view of the image
+    for _, flat, _ in _disc_groups(uv, rho, shape):  # one offset grid per reach: (samples, offsets) at once
+        pixels[flat] = True
     return image
 
 

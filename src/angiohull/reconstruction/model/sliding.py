@@ -27,7 +27,6 @@ Arrays, projections and trees in; a tree out.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Sequence
 
 import numpy as np
@@ -36,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from ...geometry import Projection
 from ...tree import Branch, VesselTree
-from .agreement import tube_silhouette
+from .agreement import _disc_pixels, tube_silhouette
 
 __all__ = ["SlideSettings", "SLIDE_SETTINGS", "slid_along_rays"]
 
@@ -58,31 +57,6 @@ class SlideSettings:
 
 
 SLIDE_SETTINGS = SlideSettings()
-
-
-@lru_cache(maxsize=64)
-def _offsets(reach: int) -> tuple[np.ndarray, np.ndarray]:
-    """The pixel offsets (du, dv) of the square of half-edge ``reach``."""
-    du, dv = np.meshgrid(np.arange(-reach, reach + 1), np.arange(-reach, reach + 1))
-    return du.ravel(), dv.ravel()
-
-
-def _disc_pixels(uv: np.ndarray, rho: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Flat indices into an image of ``shape`` of the pixels within ``rho`` of each ``uv``, as
-    :func:`.agreement.tube_silhouette` draws a disc, and the sample each belongs to (one entry per
-    sample and pixel: a pixel two discs cover comes twice)."""
-    reach = np.ceil(rho).astype(np.int64)
-    pixels, owners = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
-    for k in np.unique(reach):
-        at = np.flatnonzero(reach == k)
-        du, dv = _offsets(int(k))
-        cu = np.rint(uv[at, 0]).astype(np.int64)[:, None] + du[None, :]
-        cv = np.rint(uv[at, 1]).astype(np.int64)[:, None] + dv[None, :]
-        inside = (cu - uv[at, 0][:, None]) ** 2 + (cv - uv[at, 1][:, None]) ** 2 <= rho[at][:, None] ** 2
-        inside &= (cu >= 0) & (cv >= 0) & (cu < shape[1]) & (cv < shape[0])
-        pixels.append(cv[inside] * shape[1] + cu[inside])
-        owners.append(np.broadcast_to(at[:, None], inside.shape)[inside])
-    return np.concatenate(pixels), np.concatenate(owners)
 
 
 class _Picture:
