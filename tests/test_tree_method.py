@@ -18,7 +18,7 @@ from angiohull.metrics.tree import distance_to_centerline, tree_scores
 from angiohull.reconstruction import Lattice, reconstruct
 from angiohull.reconstruction import model
 from angiohull.reconstruction.model import (MODEL_SETTINGS, centerline_graph, lattice_points_in_tubes, mask_agreement,
-                                             suspect_branches, tube_silhouette)
+                                             Suspect, suspect_pieces, tube_silhouette)
 from angiohull.reconstruction.model.matching import triangulate_midpoint
 from angiohull.synthetic import Tube, TubePhantom
 from angiohull.tree import Branch, VesselTree
@@ -1189,8 +1189,8 @@ def test_the_report_of_a_tree_reconstruction_names_its_pairs_prunings_and_stages
     assert len(matchings["judged_score"]) == len(matchings["claim_costs"])
     # the score is the agreement less a penalty (the lengths', module notes)
     assert all(j < d for j, d in zip(matchings["judged_score"], matchings["mask_agreement_dice"]))
-    assert all(set(h) == {"claim_cost", "avoided_branch_length_mm", "mask_agreement_dice", "judged_score"}
-               for h in matchings["hypotheses"])
+    assert all(set(h) == {"claim_cost", "avoided", "avoided_length_mm", "mask_agreement_dice", "judged_score"}
+               and h["avoided"] in ("side branch", "root window") for h in matchings["hypotheses"])
     own_best = max(matchings["judged_score"])
     scores = [h["judged_score"] for h in matchings["hypotheses"]]
     if matchings["kept_hypothesis"] is None:
@@ -1376,11 +1376,26 @@ def test_of_two_trees_the_shorter_one_without_redundant_branches_is_kept_over_a_
     assert tree_scores(result.tree, case.tree.vessel_tree()).centerline_mean_mm < 1.0  # measured 0.83
 
 
-def test_suspect_branches_are_the_side_branches_touching_the_most_unexplained_pixels():
+def _blob_beside(mask, projection, points, k, radius_px, out_px):
+    """``mask`` with a disc of ``radius_px`` whose centre lies ``out_px`` pixels from the projection
+    of ``points[k]``, across the projected polyline there (or on along it past its last point)."""
+    uv = projection.project(points)
+    if k == len(points) - 1:
+        step = uv[k] - uv[k - 4]
+        centre = uv[k] + out_px * step / np.linalg.norm(step)
+    else:
+        step = uv[k + 1] - uv[k - 1]
+        centre = uv[k] + out_px * np.array([-step[1], step[0]]) / np.linalg.norm(step)
+    rows, cols = np.mgrid[:mask.shape[0], :mask.shape[1]]
+    return mask | ((cols - centre[0]) ** 2 + (rows - centre[1]) ** 2 <= radius_px ** 2)
+
+
+def test_suspect_pieces_are_the_side_branches_touching_the_most_unexplained_pixels():
     """A trunk with two side branches, drawn exactly into two views; the first view's mask holds a
     blob beside the second side branch's end (a vessel it does not explain) and a smaller one
     beside the first's: the second comes first, then the first; blobs below ``min_pixels`` count
-    for nothing (ties keep the branches' order), and the root is never a suspect."""
+    for nothing (ties keep the branches' order), and without root windows the root is never a
+    suspect."""
     trunk = _line((-30, 0, 0), (30, 0, 0))
     first, second = _line(trunk[20], trunk[20] + (0, 25, 5)), _line(trunk[80], trunk[80] + (5, -25, 0))
     tree = VesselTree((Branch(trunk, 1.5, name="trunk"), Branch(first, 1.0, parent=0, parent_point=20, name="first"),
@@ -1395,12 +1410,53 @@ def test_suspect_branches_are_the_side_branches_touching_the_most_unexplained_pi
         masks[0] = masks[0] | ((cols - beyond[0]) ** 2 + (rows - beyond[1]) ** 2 <= radius_px ** 2)
     unexplained = masks[0] & ~drawn
     assert unexplained.sum() > 40  # the two blobs (measured: beside the ends, a part under the tubes)
-    assert suspect_branches(tree, projections, masks, 2) == [2, 1]
-    assert suspect_branches(tree, projections, masks, 1) == [2]
-    assert suspect_branches(tree, projections, masks, 5) == [2, 1]  # the root never
-    assert suspect_branches(tree, projections, masks, 2, min_pixels=10 ** 6) == [1, 2]  # no piece counts: ties
-    assert suspect_branches(tree, projections, masks, 0) == []
-    assert suspect_branches(VesselTree((Branch(trunk, 1.5),)), projections, masks, 2) == []
+    whole = {1: Suspect(1, 0, len(first)), 2: Suspect(2, 0, len(second))}
+    assert suspect_pieces(tree, projections, masks, 2) == [whole[2], whole[1]]
+    assert suspect_pieces(tree, projections, masks, 1) == [whole[2]]
+    assert suspect_pieces(tree, projections, masks, 5) == [whole[2], whole[1]]  # the root never
+    # no piece counts: ties
+    assert suspect_pieces(tree, projections, masks, 2, min_pixels=10 ** 6) == [whole[1], whole[2]]
+    assert suspect_pieces(tree, projections, masks, 0) == []
+    assert suspect_pieces(VesselTree((Branch(trunk, 1.5),)), projections, masks, 2) == []
+    # with windows of the root: these blobs lie beyond the side branches' ends, clear of the trunk's windows
+    assert suspect_pieces(tree, projections, masks, 5, root_window_mm=20.0) == [whole[2], whole[1]]
+
+
+def test_the_root_windows_run_half_overlapping_to_the_roots_end():
+    """Hand-worked: a 60 mm root of points 0.5 mm apart read as 20 mm windows: starts at 0, 10, 20,
+    30 and 40 mm, each window from its start's point to the first point at or past its end, one
+    point more; a root shorter than a window is one window, all of it."""
+    from angiohull.reconstruction.model.agreement import _root_windows
+
+    assert _root_windows(Branch(_line((-30, 0, 0), (30, 0, 0)), 1.5), 20.0) == [(0, 41), (20, 61), (40, 81),
+                                                                                  (60, 101), (80, 121)]
+    assert _root_windows(Branch(_line((0, 0, 0), (15, 0, 0)), 1.5), 20.0) == [(0, 31)]
+
+
+def test_a_window_of_the_root_beside_unexplained_pixels_is_a_suspect_before_a_side_branch():
+    """The trunk and side branches above; the first view's mask holds a large blob beside the
+    trunk 25 mm from its start (x = -5 mm; a stretch of the main vessel the tree pairs wrongly
+    leaves its true partner's pixels beside it) and a small one beyond the first side branch's
+    end. The two windows over the blob (10-30 and 20-40 mm) touch it alike; the first ranks first
+    and the second overlaps it by more than half, so it is no suspect; the windows clear of the
+    blob touch nothing and are none; then the side branches (the second, touching nothing, last).
+    Without root windows the side branches alone."""
+    trunk = _line((-30, 0, 0), (30, 0, 0))
+    first, second = _line(trunk[20], trunk[20] + (0, 25, 5)), _line(trunk[100], trunk[100] + (5, -25, 0))
+    tree = VesselTree((Branch(trunk, 1.5, name="trunk"), Branch(first, 1.0, parent=0, parent_point=20, name="first"),
+                       Branch(second, 1.0, parent=0, parent_point=100, name="second")))
+    projections = _views()
+    masks = [tube_silhouette(tree, p) for p in projections]
+    drawn = masks[0].copy()
+    radius_px = 1.5 * max(projections[0].focal_lengths_px) / float(projections[0].depth_mm(trunk[50:51])[0])
+    masks[0] = _blob_beside(masks[0], projections[0], trunk, 50, 6.0, radius_px + 4.0)
+    masks[0] = _blob_beside(masks[0], projections[0], first, len(first) - 1, 3.0, 8.0)
+    assert (masks[0] & ~drawn).sum() > 80
+    whole = {1: Suspect(1, 0, len(first)), 2: Suspect(2, 0, len(second))}
+    assert suspect_pieces(tree, projections, masks, 5, root_window_mm=20.0) == [Suspect(0, 20, 61), whole[1],
+                                                                                whole[2]]
+    assert suspect_pieces(tree, projections, masks, 1, root_window_mm=20.0) == [Suspect(0, 20, 61)]
+    assert suspect_pieces(tree, projections, masks, 5) == [whole[1], whole[2]]
 
 
 def test_a_matching_never_pairs_into_the_region_it_avoids():

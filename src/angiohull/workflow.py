@@ -354,10 +354,12 @@ def build_report(study: Study, result: ReconstructionResult, options: Reconstruc
                 "mask_agreement_dice": [float(a) for a in build.mask_agreement],
                 "judged_score": [float(j) for j in build.judged_score],  # the agreement less the lengths' penalty
                 "kept_claim_cost": float(build.kept_claim_cost),
-                # trees built again, each with a branch's pairing taken for wrong (module notes)
-                "hypotheses": [{"claim_cost": float(c), "avoided_branch_length_mm": float(length),
-                                "mask_agreement_dice": float(a), "judged_score": float(j)}
-                               for c, length, a, j in build.hypotheses],
+                # trees built again, each with a piece's pairing taken for wrong (module notes): a side
+                # branch, or a window of the root
+                "hypotheses": [{"claim_cost": float(c), "avoided": "root window" if root else "side branch",
+                                "avoided_length_mm": float(length), "mask_agreement_dice": float(a),
+                                "judged_score": float(j)}
+                               for (c, length, a, j), root in zip(build.hypotheses, build.hypotheses_of_root)],
                 "kept_hypothesis": build.kept_hypothesis,
             }
     if scores is not None:

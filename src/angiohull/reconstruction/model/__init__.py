@@ -93,14 +93,16 @@ views' 2D centerlines and widths say where the vessels are. Steps:
    threads are fork-safe (multiprocessing's fork start method relies on it too).
    **Hypotheses of a wrong pairing** (two views, ``hypotheses``): a tree that agrees less than
    ``hypothesis_gate`` with the masks is built again ``hypotheses`` times, each time with one of
-   its side branches taken for a wrong pairing: the matchings run again (every round, and the
-   rematch of unexplained pixels) with the candidates within that branch's radius (at least
-   0.5 mm) plus ``avoid_margin_mm`` of its axis costing ``avoid_cost`` more
-   (:class:`.matching.Avoid`), so its pixels pair with something else or nothing. The branches
-   tried are those touching the most unexplained mask pixels (:func:`.agreement.suspect_branches`):
-   where a long vessel of one view was paired with a shorter wrong one of the other (a
-   foreshortened true partner, the distal RCA against the acute marginal), the rest of the shorter
-   vessel's own view is left beside it unexplained. A hypothesis's tree is kept where it is judged
+   its pieces taken for a wrong pairing: the matchings run again (every round, and the rematch of
+   unexplained pixels) with the candidates within that piece's radius (at least 0.5 mm) plus
+   ``avoid_margin_mm`` of its axis costing ``avoid_cost`` more (:class:`.matching.Avoid`), so its
+   pixels pair with something else or nothing. The pieces tried are those touching the most
+   unexplained mask pixels (:func:`.agreement.suspect_pieces`), of the side branches and the
+   root's windows ``root_window_mm`` long (half overlapping): where a long vessel of one view was
+   paired with a shorter wrong one of the other (a foreshortened true partner, the distal RCA
+   against the acute marginal), the rest of the shorter vessel's own view is left beside it
+   unexplained, beside a side branch or, where the root itself was paired so, beside a stretch of
+   the root (since 2026-12-07; docs/tree-method.md). A hypothesis's tree is kept where it is judged
    best of all and by at least ``hypothesis_margin`` more than the best of the matchings' own trees
    (many hypotheses, each a little different, would otherwise win by noise: on the segmented
    angiograms of the benchmark, every hypothesis of every tree tried and the best kept put the
@@ -138,7 +140,7 @@ from ...tree import VesselTree
 from ..cube import Lattice
 from ..vessel_tree import TREE_SETTINGS, SupportBridge, TreeBuild, TreeSettings, hull_tree, refit_tree
 from .graph2d import CenterlineGraph2D, centerline_graph
-from .agreement import mask_agreement, suspect_branches, tube_silhouette
+from .agreement import Suspect, mask_agreement, suspect_pieces, tube_silhouette
 from .matching import (MATCH_SETTINGS, Avoid, MatchSettings, ViewData, anchored_match, mask_core, match_pixels,
                        with_width_bias)
 from .sliding import SLIDE_SETTINGS, SlideSettings, slid_along_rays
@@ -154,7 +156,7 @@ from .pruning import (_DiscPairs, _explained_pruning, _holding, _kept, _nearest_
 __all__ = ["ModelSettings", "MODEL_SETTINGS", "ModelBuild", "model_tree", "centerline_graph", "CenterlineGraph2D",
            "MatchSettings", "lattice_points_in_tubes", "explained_shares", "prune_explained_branches",
            "reproduced_points", "prune_unreproduced_branches", "unreproduced_inner_branches", "covered_points",
-           "contradicted_stretches", "restore_uncovered_branches", "mask_agreement", "suspect_branches",
+           "contradicted_stretches", "restore_uncovered_branches", "mask_agreement", "Suspect", "suspect_pieces",
            "tube_silhouette"]
 
 
@@ -196,11 +198,13 @@ class ModelSettings:
     # the tree judged best kept (its tubes' agreement with the masks less the lengths' penalty below; module notes)
     fork_alternatives: bool = True  # ... their trees built in a forked process meanwhile, where that is safe (notes)
     # two views, hypotheses of a wrong pairing (module notes): a tree agreeing less than hypothesis_gate with the
-    # masks is built again once per side branch of the `hypotheses` touching the most unexplained mask pixels (in
-    # pieces of unexplained_min_pixels or more), the candidates within that branch's radius (at least 0.5 mm) plus
-    # avoid_margin_mm costing avoid_cost more; a hypothesis's tree is kept where it is judged best of all, and by
-    # at least hypothesis_margin more than the matchings' own trees
+    # masks is built again once per piece of the `hypotheses` touching the most unexplained mask pixels (in pieces
+    # of unexplained_min_pixels or more; a side branch, or a window of the root root_window_mm long, half
+    # overlapping the next; 0: the root is no suspect), the candidates within that piece's radius (at least
+    # 0.5 mm) plus avoid_margin_mm costing avoid_cost more; a hypothesis's tree is kept where it is judged best of
+    # all, and by at least hypothesis_margin more than the matchings' own trees
     hypotheses: int = 3
+    root_window_mm: float = 15.0
     hypothesis_gate: float = 0.975
     unexplained_min_pixels: int = 5
     avoid_cost: float = 10.0
@@ -241,7 +245,8 @@ class ModelBuild:
     judged_score: tuple[float, ...] = ()  # ... that less the lengths' penalty (module notes), which decides
     kept_claim_cost: float | None = None  # ... and the claim cost of the tree kept (the best judged; None: one tree)
     hypotheses: tuple[tuple[float, float, float, float], ...] = ()  # two views: per hypothesis tree (module notes)
-    # its claim cost, the length of the branch whose pairing it avoided (mm), its agreement with the masks and score
+    # its claim cost, the length of the piece whose pairing it avoided (mm), its agreement with the masks and score
+    hypotheses_of_root: tuple[bool, ...] = ()  # ... per hypothesis, whether that piece was a window of the root
     kept_hypothesis: int | None = None  # ... the one kept (None: a matching's own tree)
     width_bias_px: float | None = None  # two views: how much wider view 1 shows the vessels (half-width, px) ...
     width_bias_taken: bool = False  # ... and whether it was taken off where the radii compare (matching notes, 7.)
@@ -306,7 +311,8 @@ class _Candidate:
     counts: dict[str, int]
     agreement: float  # mean Dice of its tubes' silhouettes and the masks
     correspondence: _Correspondence
-    avoided_mm: float | None = None  # a hypothesis: the length of the branch whose pairing it avoided
+    avoided_mm: float | None = None  # a hypothesis: the length of the piece whose pairing it avoided ...
+    avoided_root: bool = False  # ... and whether that was a window of the root (else a side branch)
     length_mm: float = 0.0  # the tree's length
     redundant_mm: float = 0.0  # ... and its branches' that only one view needs (redundant in the other)
     score: float = np.nan  # the agreement less the lengths' penalty (module notes), set once every own tree is built
@@ -638,11 +644,11 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
             return _Candidate(*built, np.nan, corr)
         return _Candidate(*built, correspondence=corr, **judging(built[0]))
 
-    def hypothesis(k: int, tree: VesselTree, branch: int) -> _Candidate | None:
-        """Matching ``k``'s tree built again with the pairing of its branch ``branch`` avoided."""
-        corr, b = correspondences[k], tree.branches[branch]
-        avoid = Avoid(b.points_mm, np.maximum(b.radius_mm, _AVOID_MIN_RADIUS_MM) + settings.avoid_margin_mm,
-                      settings.avoid_cost)
+    def hypothesis(k: int, tree: VesselTree, suspect: Suspect) -> _Candidate | None:
+        """Matching ``k``'s tree built again with the pairing of its piece ``suspect`` avoided."""
+        corr, b = correspondences[k], tree.branches[suspect.branch]
+        points, radius = b.points_mm[suspect.first:suspect.end], b.radius_mm[suspect.first:suspect.end]
+        avoid = Avoid(points, np.maximum(radius, _AVOID_MIN_RADIUS_MM) + settings.avoid_margin_mm, settings.avoid_cost)
         try:
             other, _ = matchings.correspondence(corr.claim_cost, avoid)
             if len(other.initial) < 2:
@@ -651,7 +657,9 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
                                       bridge, settings_of(corr), avoid)
         except ReconstructionError:  # no tree without that branch's pairing: no hypothesis
             return None
-        return _Candidate(*built, correspondence=other, avoided_mm=float(b.length_mm), **judging(built[0]))
+        avoided_mm = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+        return _Candidate(*built, correspondence=other, avoided_mm=avoided_mm, avoided_root=suspect.branch == 0,
+                          **judging(built[0]))
 
     trees = dict(zip(todo, _in_processes([lambda k=k: tree_of(k) for k in todo], settings.fork_alternatives)))
     own_length_mm = float(np.mean([trees[k].length_mm for k in todo]))
@@ -667,12 +675,12 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
     hypotheses: list[_Candidate] = []
     start = time.perf_counter()
     if judged and settings.hypotheses > 0:  # step 4's hypotheses of a wrong pairing (module notes)
-        tasks = [(k, branch) for k in todo if trees[k].agreement < settings.hypothesis_gate
-                 for branch in suspect_branches(trees[k].tree, projections, masks, settings.hypotheses,
-                                                settings.unexplained_min_pixels)]
+        tasks = [(k, suspect) for k in todo if trees[k].agreement < settings.hypothesis_gate
+                 for suspect in suspect_pieces(trees[k].tree, projections, masks, settings.hypotheses,
+                                               settings.unexplained_min_pixels, root_window_mm=settings.root_window_mm)]
         if tasks:
             say(f"{len(tasks)} hypotheses of a wrong pairing (trees agreeing less than {settings.hypothesis_gate:g})")
-        built = _in_processes([lambda k=k, b=b: hypothesis(k, trees[k].tree, b) for k, b in tasks],
+        built = _in_processes([lambda k=k, s=s: hypothesis(k, trees[k].tree, s) for k, s in tasks],
                               settings.fork_alternatives)
         hypotheses = [h for h in built if h is not None]
         bar = best.score + settings.hypothesis_margin
@@ -689,7 +697,8 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
             + ", ".join(f"claim cost {c.claim_cost:g}: {a:.4f} ({j:.4f})"
                         for c, a, j in zip(correspondences, agreement, score))
             + tried + f"; kept claim cost {best.correspondence.claim_cost:g}"
-            + (f", the tree without the pairing of a {best.avoided_mm:.0f} mm branch" if best.avoided_mm else ""))
+            + (f", the tree without the pairing of a {best.avoided_mm:.0f} mm "
+               + ("stretch of the root" if best.avoided_root else "branch") if best.avoided_mm else ""))
     else:
         del timings["agreement"]
     tree, tree_build, counts = best.tree, best.build, best.counts
@@ -721,6 +730,7 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
                        kept_claim_cost=kept.claim_cost if judged else None,
                        hypotheses=tuple((h.correspondence.claim_cost, h.avoided_mm, h.agreement, h.score)
                                         for h in hypotheses),
+                       hypotheses_of_root=tuple(h.avoided_root for h in hypotheses),
                        kept_hypothesis=next((j for j, h in enumerate(hypotheses) if h is best), None),
                        width_bias_px=width_bias[0], width_bias_taken=width_bias[1], slid_runs=slid)
     return lumen, tree, build

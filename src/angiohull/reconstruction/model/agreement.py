@@ -15,7 +15,7 @@ the pixel centres (integer ``(u, v)``).
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 from scipy import ndimage as ndi
@@ -23,7 +23,7 @@ from scipy import ndimage as ndi
 from ...geometry import Projection
 from ...tree import Branch, VesselTree
 
-__all__ = ["tube_silhouette", "mask_agreement", "suspect_branches"]
+__all__ = ["tube_silhouette", "mask_agreement", "Suspect", "suspect_pieces"]
 
 
 def _samples(tree: VesselTree, step_mm: float) -> tuple[np.ndarray, np.ndarray]:
@@ -104,20 +104,53 @@ def mask_agreement(tree: VesselTree, projections: Sequence[Projection], masks: S
     return out
 
 
-def suspect_branches(tree: VesselTree, projections: Sequence[Projection], masks: Sequence[np.ndarray], count: int,
-                     min_pixels: int = 5, *, step_mm: float = 0.25) -> list[int]:
-    """The side branches (not the root) most likely paired wrongly across two views: at most
-    ``count`` of them, by the unexplained mask pixels they touch, most first (ties: the first
-    branch first). A view's unexplained pixels are those of its mask outside the tree's
-    :func:`tube_silhouette`, in 8-connected pieces; a branch touches a piece of at least
-    ``min_pixels`` pixels where the piece reaches within two pixels (4-connected steps) of the
-    branch's own silhouette; it scores the pieces' pixels it touches, summed over the views. A
-    vessel of one view paired with the wrong vessel of the other leaves the rest of that vessel,
-    beyond the shorter of the two, unexplained beside it."""
-    if count <= 0 or tree.n_branches < 2:
+class Suspect(NamedTuple):
+    """A piece of a tree whose pairing a hypothesis takes for wrong: the points ``first`` to
+    ``end`` (exclusive) of branch ``branch``: a side branch whole, or a window of the root."""
+
+    branch: int
+    first: int
+    end: int
+
+
+def _root_windows(root: Branch, window_mm: float) -> list[tuple[int, int]]:
+    """The root's windows ``window_mm`` long, each starting half a window after the last, the
+    last ending at or past the root's end (a root shorter than a window: one window, all of it);
+    (first, end) point indices."""
+    arc = root.arc_length_mm
+    starts = np.arange(0.0, max(float(arc[-1]) - window_mm, 0.0) + 1e-9, 0.5 * window_mm)
+    return [(int(np.searchsorted(arc, s)), min(int(np.searchsorted(arc, s + window_mm)) + 1, len(arc)))
+            for s in starts]
+
+
+def suspect_pieces(tree: VesselTree, projections: Sequence[Projection], masks: Sequence[np.ndarray], count: int,
+                   min_pixels: int = 5, *, root_window_mm: float = 0.0, step_mm: float = 0.25) -> list[Suspect]:
+    """The pieces of the tree most likely paired wrongly across two views: the side branches and,
+    with ``root_window_mm`` > 0, windows of the root that long (:func:`_root_windows`), ranked
+    together by the unexplained mask pixels they touch; at most ``count`` of them, most first
+    (ties: side branches first, in their order, then windows along the root). A window that
+    touches none, or that overlaps one ranked before it by more than half its points, is no
+    suspect. A view's unexplained pixels are those of its mask outside the tree's
+    :func:`tube_silhouette`, in 8-connected pieces; a piece of the tree touches such a piece of at
+    least ``min_pixels`` pixels where it reaches within two pixels (4-connected steps) of the
+    tree piece's own silhouette; it scores the pixels of the pieces it touches, summed over the
+    views. A vessel of one view paired with the wrong vessel of the other leaves the rest of that
+    vessel, beyond the shorter of the two, unexplained beside it; where the root itself is paired
+    wrongly over a stretch (the distal RCA of one view with the acute marginal of the other), a
+    window of the root is the piece beside it."""
+    if count <= 0:
         return []
-    touched = np.zeros(tree.n_branches)
+    suspects = [Suspect(k, 0, tree.branches[k].n_points) for k in range(1, tree.n_branches)]
+    if root_window_mm > 0:
+        suspects += [Suspect(0, first, end) for first, end in _root_windows(tree.branches[0], root_window_mm)]
+    if not suspects:
+        return []
     alone = [VesselTree((Branch(b.points_mm, b.radius_mm, None, None, b.name),)) for b in tree.branches]
+    root = tree.branches[0]
+    windows = {k: VesselTree((Branch(root.points_mm[s.first:s.end], root.radius_mm[s.first:s.end],
+                                     name="root window"),))
+               for k, s in enumerate(suspects) if s.branch == 0}
+    touched = np.zeros(len(suspects))
     for projection, mask in zip(projections, masks):
         # each branch's own silhouette; the tree's is their union (the same discs)
         own_silhouettes = [tube_silhouette(branch, projection, step_mm=step_mm) for branch in alone]
@@ -131,8 +164,9 @@ def suspect_branches(tree: VesselTree, projections: Sequence[Projection], masks:
         size = np.bincount(pieces.ravel(), minlength=n + 1)
         size[0] = 0
         size[size < min_pixels] = 0
-        for k in range(1, tree.n_branches):
-            own = own_silhouettes[k]
+        for k, suspect in enumerate(suspects):
+            own = (own_silhouettes[suspect.branch] if suspect.branch
+                   else tube_silhouette(windows[k], projection, step_mm=step_mm))
             rows, cols = np.nonzero(own)
             if len(rows) == 0:
                 continue
@@ -142,5 +176,16 @@ def suspect_branches(tree: VesselTree, projections: Sequence[Projection], masks:
             near = ndi.binary_dilation(own[lo_r:hi_r, lo_c:hi_c], iterations=2)
             ids = np.unique(pieces[lo_r:hi_r, lo_c:hi_c][near])
             touched[k] += size[ids].sum()
-    order = 1 + np.argsort(-touched[1:], kind="stable")
-    return [int(k) for k in order[:count]]
+    out: list[Suspect] = []
+    for k in np.argsort(-touched, kind="stable"):
+        if len(out) == count:
+            break
+        suspect = suspects[k]
+        if suspect.branch == 0:
+            if touched[k] <= 0:
+                continue
+            half = 0.5 * (suspect.end - suspect.first)
+            if any(o.branch == 0 and min(suspect.end, o.end) - max(suspect.first, o.first) > half for o in out):
+                continue
+        out.append(suspect)
+    return out
