@@ -655,7 +655,7 @@ def model_tree(projections: Sequence[Projection], masks: Sequence[np.ndarray], l
                 return None
             built = _tree_from_volume(projections, masks, lattice, other.initial, other.own, nearest, views, pairs,
                                       bridge, settings_of(corr), avoid)
-        except ReconstructionError:  # no tree without that branch's pairing: no hypothesis
+        except ReconstructionError:  # no tree without that piece's pairing: no hypothesis
             return None
         avoided_mm = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
         return _Candidate(*built, correspondence=other, avoided_mm=avoided_mm, avoided_root=suspect.branch == 0,
