@@ -1390,16 +1390,24 @@ def _blob_beside(mask, projection, points, k, radius_px, out_px):
     return mask | ((cols - centre[0]) ** 2 + (rows - centre[1]) ** 2 <= radius_px ** 2)
 
 
+def _trunk_with_two_side_branches(second_at: int) -> tuple[VesselTree, np.ndarray, np.ndarray, np.ndarray]:
+    """A 60 mm trunk (points 0.5 mm apart, radius 1.5 mm) with a side branch leaving its point 20
+    and another leaving its point ``second_at`` (radius 1 mm): the tree, and the three polylines."""
+    trunk = _line((-30, 0, 0), (30, 0, 0))
+    first = _line(trunk[20], trunk[20] + (0, 25, 5))
+    second = _line(trunk[second_at], trunk[second_at] + (5, -25, 0))
+    tree = VesselTree((Branch(trunk, 1.5, name="trunk"), Branch(first, 1.0, parent=0, parent_point=20, name="first"),
+                       Branch(second, 1.0, parent=0, parent_point=second_at, name="second")))
+    return tree, trunk, first, second
+
+
 def test_suspect_pieces_are_the_side_branches_touching_the_most_unexplained_pixels():
     """A trunk with two side branches, drawn exactly into two views; the first view's mask holds a
     blob beside the second side branch's end (a vessel it does not explain) and a smaller one
     beside the first's: the second comes first, then the first; blobs below ``min_pixels`` count
     for nothing (ties keep the branches' order), and without root windows the root is never a
     suspect."""
-    trunk = _line((-30, 0, 0), (30, 0, 0))
-    first, second = _line(trunk[20], trunk[20] + (0, 25, 5)), _line(trunk[80], trunk[80] + (5, -25, 0))
-    tree = VesselTree((Branch(trunk, 1.5, name="trunk"), Branch(first, 1.0, parent=0, parent_point=20, name="first"),
-                       Branch(second, 1.0, parent=0, parent_point=80, name="second")))
+    tree, trunk, first, second = _trunk_with_two_side_branches(80)
     projections = _views()
     masks = [tube_silhouette(tree, p) for p in projections]
     drawn = masks[0].copy()
@@ -1441,10 +1449,7 @@ def test_a_window_of_the_root_beside_unexplained_pixels_is_a_suspect_before_a_si
     and the second overlaps it by more than half, so it is no suspect; the windows clear of the
     blob touch nothing and are none; then the side branches (the second, touching nothing, last).
     Without root windows the side branches alone."""
-    trunk = _line((-30, 0, 0), (30, 0, 0))
-    first, second = _line(trunk[20], trunk[20] + (0, 25, 5)), _line(trunk[100], trunk[100] + (5, -25, 0))
-    tree = VesselTree((Branch(trunk, 1.5, name="trunk"), Branch(first, 1.0, parent=0, parent_point=20, name="first"),
-                       Branch(second, 1.0, parent=0, parent_point=100, name="second")))
+    tree, trunk, first, second = _trunk_with_two_side_branches(100)
     projections = _views()
     masks = [tube_silhouette(tree, p) for p in projections]
     drawn = masks[0].copy()
