@@ -1560,3 +1560,27 @@ def test_the_alternative_tree_built_in_a_forked_process_is_the_one_built_here(mo
     assert forked.model_build.mask_agreement == sequential.model_build.mask_agreement
     assert isinstance(_can_fork(), bool)
 
+
+
+@pytest.mark.parametrize("dense_share", [0.0, np.inf])
+def test_a_slides_move_scores_and_counts_alike_whether_counted_on_the_whole_image_or_on_the_discs_pixels(
+        dense_share, monkeypatch):
+    from angiohull.reconstruction.model import sliding
+
+    projections = _views()
+    truth = _arc_vessel()
+    masks = _masks(truth, projections)
+    monkeypatch.setattr(sliding, "_DENSE_SHARE", dense_share)
+    picture = sliding._Picture(truth.branches, projections[1], masks[1], 0.25)
+    samples = picture.samples[0]
+    old, radii = samples.points_mm, samples.radius_mm
+    new = old + np.array([0.0, 0.0, 1.5]) * np.clip(1 - np.abs(samples.arc_length_mm - 40) / 10, 0, None)[:, None]
+    # the oracle: the counts drawn from scratch at the moved samples
+    size = np.asarray(masks[1]).size
+    counted = np.bincount(picture.pixels(new, radii)[0], minlength=size)
+    weight = np.where(np.asarray(masks[1]).ravel(), 1, -1)
+    expected = int((weight * ((counted > 0).astype(int) - (picture.count > 0))).sum())
+    score, touched, change = picture.moved(old, new, radii)
+    assert score == expected and expected != 0
+    picture.keep(touched, change)
+    np.testing.assert_array_equal(picture.count, counted)

@@ -59,6 +59,9 @@ class SlideSettings:
 SLIDE_SETTINGS = SlideSettings()
 
 
+_DENSE_SHARE = 1 / 16  # _Picture.moved counts on the whole image where its discs hold more pixels than this share of it
+
+
 class _Picture:
     """One view's picture of a tree: per pixel, how many of the tree's samples (every ``step_mm``
     of each branch, as :func:`.agreement.tube_silhouette` takes them) cover it; samples of a run
@@ -88,11 +91,20 @@ class _Picture:
     def moved(self, old: np.ndarray, new: np.ndarray, radii: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
         """Samples at ``old`` moved to ``new`` (their radii ``radii``), the counts left as they
         are: the change of the covered mask pixels less the covered pixels outside them, and the
-        pixels touched with their counts' changes (for :meth:`keep`)."""
+        pixels touched with their counts' changes (for :meth:`keep`). Where the discs hold more
+        pixels than :data:`_DENSE_SHARE` of the image's (wide vessels on a large image), the
+        changes are counted on the whole image and the pixels whose count does not change left
+        out (they change neither the score nor the counts), instead of sorting the discs' pixels
+        (the same score and counts; the slide on the XCAT vessel's 960 x 960 views 23.8 -> 13.4 s)."""
         pixels, owner = self.pixels(np.vstack([old, new]), np.concatenate([radii, radii]))
-        touched, which = np.unique(pixels, return_inverse=True)
-        change = np.bincount(which, weights=np.where(owner >= len(radii), 1.0, -1.0),
-                             minlength=len(touched)).astype(np.int32)
+        sign = np.where(owner >= len(radii), 1, -1)
+        if len(pixels) > _DENSE_SHARE * self.weight.size:
+            dense = np.bincount(pixels, weights=sign, minlength=self.weight.size)
+            touched = np.flatnonzero(dense)
+            change = dense[touched].astype(np.int32)
+        else:
+            touched, which = np.unique(pixels, return_inverse=True)
+            change = np.bincount(which, weights=sign, minlength=len(touched)).astype(np.int32)
         was, now = self.count[touched] > 0, self.count[touched] + change > 0
         return int((self.weight[touched] * (now.astype(np.int64) - was)).sum()), touched, change
 
