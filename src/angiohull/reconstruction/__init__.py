@@ -8,6 +8,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, field
+from itertools import combinations
 from typing import Callable, Sequence
 
 import numpy as np
@@ -15,7 +16,7 @@ import numpy as np
 from .. import _validation as _v
 from .. import options
 from ..errors import EmptyHullError, ReconstructionError
-from ..geometry import Projection, cube_half_edge_mm
+from ..geometry import Projection, cube_half_edge_mm, degrees_from_one_line
 from ..tree import VesselTree
 from .centerlines import extract_centerlines, skeletonise
 from .cube import MAX_DENSE_RESOLUTION, Lattice
@@ -413,6 +414,21 @@ _TREE_METHOD_HINT = (" (the tree method, which needs vessels in the masks and a 
                      "method 'hull' carves the visual hull instead)")
 
 
+_DEEP_HULL_DEG = 30.0  # views nearer than this to looking along one line carve a deep hull (_deep_hull_hint)
+
+
+def _deep_hull_hint(projections: Sequence[Projection]) -> str:
+    """What a hull too large for a vessel tree may owe to the views rather than to the masks: where
+    every pair of views looks within :data:`_DEEP_HULL_DEG` of one line, each vessel's hull runs
+    deep along the rays (two views of a wide vessel nearly opposite each other). Empty otherwise."""
+    nearest = max(degrees_from_one_line(a, b) for a, b in combinations(projections, 2))
+    if nearest >= _DEEP_HULL_DEG:
+        return ""
+    return (f"; or is it the views? every pair of them looks within {nearest:.1f} degrees of one line, where each "
+            f"vessel's hull runs deep along the rays (views {_DEEP_HULL_DEG:g} degrees or more from one line carve a "
+            f"smaller one)")
+
+
 def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray], names: tuple[str, ...], *,
                       resolution: int | None, threshold_px: float, engine: str, centerlines: bool,
                       half_edge_mm: float | None, device: str, min_views: int | None, preset: str,
@@ -474,7 +490,7 @@ def _reconstruct_tree(projections: Sequence[Projection], masks: list[np.ndarray]
         try:  # after minutes of 2D centerlines and matchings through masks that are not vessel masks
             checked_occupancy(outcome.points_mm, lattice, MODEL_SETTINGS.tree)
         except ReconstructionError as exc:
-            raise ReconstructionError(f"{exc}{_TREE_METHOD_HINT}") from None
+            raise ReconstructionError(f"{exc}{_deep_hull_hint(projections)}{_TREE_METHOD_HINT}") from None
     initial = None
     if len(projections) >= 3:
         # three views or more: the refined hull is no longer ambiguous, and its skeleton starts the tree
