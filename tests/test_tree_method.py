@@ -26,8 +26,9 @@ from angiohull.tree import Branch, VesselTree
 TWO = ("RAO 30 CAU 25", "LAO 45 CRA 20")
 
 
-def _views():
-    return [CArmGeometry(*parse_clinical_angles(v), 1200.0, 800.0, (0.35, 0.35), (512, 512)).projection() for v in TWO]
+def _views(angles=TWO):
+    return [CArmGeometry(*parse_clinical_angles(v), 1200.0, 800.0, (0.35, 0.35), (512, 512)).projection()
+            for v in angles]
 
 
 def _line(a, b, step=0.5):
@@ -1107,8 +1108,7 @@ def test_a_hull_too_large_from_views_nearly_opposite_names_the_views_too():
     """Two views 170 degrees apart (10 from looking along one line): each vessel's hull runs deep
     along the rays (the XCAT vessel's 17 mm tube from views 160-180 degrees apart fills 1.0-2.1
     million cells), so the error asks about the views as well as the masks, with their angle."""
-    projections = [CArmGeometry(*parse_clinical_angles(v), 1200.0, 800.0, (0.35, 0.35), (512, 512)).projection()
-                   for v in ("LAO 80", "RAO 90")]
+    projections = _views(("LAO 80", "RAO 90"))
     rng = np.random.default_rng(1)
     noise = [rng.random(p.image_shape) < 0.5 for p in projections]
     with pytest.warns(InputWarning), \
@@ -1575,7 +1575,6 @@ def test_the_alternative_tree_built_in_a_forked_process_is_the_one_built_here(mo
     np.testing.assert_array_equal(forked.tree.points()[0], sequential.tree.points()[0])
     assert forked.model_build.mask_agreement == sequential.model_build.mask_agreement
     assert isinstance(_can_fork(), bool)
-
 
 
 @pytest.mark.parametrize("dense_share", [0.0, np.inf])

@@ -8,7 +8,6 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, field
-from itertools import combinations
 from typing import Callable, Sequence
 
 import numpy as np
@@ -16,7 +15,7 @@ import numpy as np
 from .. import _validation as _v
 from .. import options
 from ..errors import EmptyHullError, ReconstructionError
-from ..geometry import Projection, cube_half_edge_mm, degrees_from_one_line
+from ..geometry import Projection, cube_half_edge_mm
 from ..tree import VesselTree
 from .centerlines import extract_centerlines, skeletonise
 from .cube import MAX_DENSE_RESOLUTION, Lattice
@@ -421,7 +420,9 @@ def _deep_hull_hint(projections: Sequence[Projection]) -> str:
     """What a hull too large for a vessel tree may owe to the views rather than to the masks: where
     every pair of views looks within :data:`_DEEP_HULL_DEG` of one line, each vessel's hull runs
     deep along the rays (two views of a wide vessel nearly opposite each other). Empty otherwise."""
-    nearest = max(degrees_from_one_line(a, b) for a, b in combinations(projections, 2))
+    from .model import _from_one_line_deg
+
+    nearest = _from_one_line_deg(projections)
     if nearest >= _DEEP_HULL_DEG:
         return ""
     return (f"; or is it the views? every pair of them looks within {nearest:.1f} degrees of one line, where each "

@@ -522,11 +522,16 @@ def _tree_from_volume(projections: Sequence[Projection], masks: Sequence[np.ndar
     return tree, tree_build, counts
 
 
+def _from_one_line_deg(projections: Sequence[Projection]) -> float:
+    """How far from looking along one line the views are, at most over their pairs (degrees)."""
+    return max(degrees_from_one_line(a, b) for a, b in combinations(projections, 2))
+
+
 def _along_one_line(projections: Sequence[Projection], within_deg: float = 5.0) -> str | None:
     """Where every pair of views looks along nearly one line (within ``within_deg``): what to say
     instead of a finer lattice (the rays of paired pixels then run along each other, and meet
     nowhere). None otherwise."""
-    nearest = max(degrees_from_one_line(a, b) for a, b in combinations(projections, 2))
+    nearest = _from_one_line_deg(projections)
     if nearest >= within_deg:
         return None
     return (f"the views look along one line (their central rays {nearest:.1f} degrees from it at most), so the "
