@@ -15,8 +15,9 @@ from scipy import ndimage as ndi
 from angiohull.errors import AgreementWarning, InputWarning, ReconstructionError
 from angiohull.geometry import CArmGeometry, parse_clinical_angles
 from angiohull.metrics.tree import distance_to_centerline, tree_scores
-from angiohull.reconstruction import Lattice, reconstruct
+from angiohull.reconstruction import Lattice, reconstruct, view_order_agreement
 from angiohull.reconstruction import model
+from angiohull.reconstruction.checks import input_warnings, view_order_warning
 from angiohull.reconstruction.model import (MODEL_SETTINGS, centerline_graph, lattice_points_in_tubes, mask_agreement,
                                              Suspect, suspect_pieces, tube_silhouette)
 from angiohull.reconstruction.model.matching import triangulate_midpoint
@@ -1305,6 +1306,40 @@ def _generated(kind, seed):
 
     case = make_case(SynthOptions(kind=kind, tortuosity="simple", views=TWO, seed=seed))
     return case.tree.vessel_tree(), [v.projection for v in case.views], [v.mask for v in case.views]
+
+
+def test_the_view_order_check_finds_the_two_masks_swapped_between_the_views():
+    """Generated left tree seed 8000 in the two clinical views, exact masks: swapped between the
+    views, its masks still cover nearly the same epipolar planes and the input checks say nothing;
+    the tree method's trees agree better with them the right way round (the truth's), and the
+    check says so for the swapped study alone. Each side's second build is the other side's first:
+    the agreements are the same numbers, though the check builds without the hypotheses and the
+    slide (which come after the agreement)."""
+    _, projections, masks = _generated("left", 8000)
+    swapped_masks = masks[::-1]
+    assert input_warnings(projections, swapped_masks, ["a", "b"]) == []
+    right = reconstruct(projections, masks, method="tree", centerlines=False, warn=False)
+    wrong = reconstruct(projections, swapped_masks, method="tree", centerlines=False, warn=False)
+    given, other = view_order_agreement(projections, masks, right)
+    given_wrong, other_wrong = view_order_agreement(projections, swapped_masks, wrong)
+    assert given == max(right.model_build.mask_agreement) and given_wrong == max(wrong.model_build.mask_agreement)
+    assert other == given_wrong and other_wrong == given
+    assert given > other
+    assert view_order_warning(given, other, right.view_names) is None
+    message = view_order_warning(given_wrong, other_wrong, wrong.view_names)
+    assert message is not None and f"{other_wrong:.3f}" in message and f"{given_wrong:.3f}" in message
+    assert "view0's and view1's masks swapped" in message
+
+
+def test_the_view_order_check_wants_two_views_and_the_tree_method():
+    _, projections, masks = _generated("left", 8000)
+    hull = reconstruct(projections, masks, method="hull", resolution=40, centerlines=False, tree=False, warn=False)
+    with pytest.raises(ReconstructionError, match="tree method's result"):
+        view_order_agreement(projections, masks, hull)
+    with pytest.raises(ReconstructionError, match="got 3 views .with three, two masks swapped"):
+        view_order_agreement(projections + projections[:1], masks + masks[:1], hull)
+    assert view_order_warning(0.97, None, ["a", "b"]) is None  # no tree the other way round: nothing to say
+    assert view_order_warning(0.97, 0.97, ["a", "b"]) is None
 
 
 def test_of_two_views_the_tree_kept_is_the_one_that_agrees_best_with_the_masks(monkeypatch):

@@ -112,6 +112,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--qca", action="store_true",
                    help="then run the quantitative coronary analysis of the tree (as `angiohull qca OUT_DIR`) and "
                         "write qca.json, lesions.csv, branches.csv and its figures into OUT_DIR/qca/")
+    p.add_argument("--check-view-order", action="store_true",
+                   help="two views, the tree method: build it again with the two masks swapped between the views and "
+                        "warn when that explains them better (a mask given for the wrong view, which the other checks "
+                        "mostly miss); the time of a second reconstruction; both agreements go to report.json: "
+                        "view_order")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
     p = sub.add_parser("evaluate", help="reconstruct a study and score it against its ground truth",
@@ -380,9 +385,27 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
                               f"carving joins to it (report.json: tree.build)", TreeWarning, stacklevel=1)
         else:
             warnings.warn(f"no vessel tree: {result.tree_error}", TreeWarning, stacklevel=1)
+    view_order = None
+    if options.check_view_order:
+        if len(study.views) != 2:
+            progress(f"view order: not checked (the check swaps two views' masks; with {len(study.views)} views the "
+                     f"views' agreement, checked above, warns of masks swapped between them)")
+        else:
+            progress("checking the view order: the tree method again with the two masks swapped between the views")
+            given, swapped = workflow.view_order_agreement(study, options, result)
+            view_order = {"agreement_given": round(given, 4),
+                          "agreement_swapped": None if swapped is None else round(swapped, 4),
+                          "swapped_agrees_better": swapped is not None and swapped > given}
+            progress(f"view order: mean Dice of the trees' silhouettes {given:.4f} as given, "
+                     + ("no tree with the masks swapped" if swapped is None else f"{swapped:.4f} swapped"))
+            message = workflow.view_order_warning(given, swapped, study.names)
+            if message:
+                warnings.warn(message, AgreementWarning, stacklevel=1)
     silhouettes = workflow.view_silhouettes(study, result)
     scores = workflow.json_safe(workflow.evaluation_scores(study, result, silhouettes)) if score else None
     report = workflow.build_report(study, result, options, silhouettes, scores)
+    if view_order is not None:
+        report["view_order"] = view_order
     report["view_separation_deg"] = {"pairs": separation, "warn_below": workflow.MIN_VIEW_SEPARATION_DEG}
     report["view_agreement"] = {"coverage": agreement, "min_coverage": workflow.AGREEMENT_MIN_COVERAGE,
                                 "disagreeing": [n for n, c in agreement.items() if c < workflow.AGREEMENT_MIN_COVERAGE],
@@ -446,7 +469,7 @@ def _cmd_reconstruct(args) -> int:
     options = ReconstructOptions(args.resolution, args.threshold, args.engine, not args.no_centerlines, args.device,
                                  min_views=args.min_views, calibrate=args.calibrate,
                                  calibrate_scale=args.calibrate_scale, preset=args.preset, tree=not args.no_tree,
-                                 method=args.method)
+                                 method=args.method, check_view_order=args.check_view_order)
     qca_error, qca_lines = None, []
     viewer_state: dict = {}
     with output_folder(args.output, inputs=[args.study, *study_inputs(study)], overwrite=args.overwrite) as staged:

@@ -28,7 +28,7 @@ from .reconstruction.calibration import (AGREEMENT_MIN_COVERAGE, Calibration, ca
                                          view_coverage)
 from .reconstruction.checks import (MIN_VIEW_SEPARATION_DEG, agreement_warning, edge_pixels, edge_runs, edge_warning,
                                     epipolar_check_applies, epipolar_offset_px, epipolar_warning, one_view_warning,
-                                    view_angle_warning, view_separation_deg)
+                                    view_angle_warning, view_order_warning, view_separation_deg)
 from . import _validation as _v
 from .errors import AngiohullError, GeometryError, OutputError, QcaError, ReconstructionError, StudyError, ViewerError
 from .geometry import Projection
@@ -42,7 +42,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_agreement", "agreement_warning",
            "view_separation_deg", "view_angle_warning", "MIN_VIEW_SEPARATION_DEG", "two_view_hint", "one_view_warning",
            "edge_warning", "edge_runs", "edge_pixels", "epipolar_offset_px", "epipolar_warning",
-           "epipolar_check_applies",
+           "epipolar_check_applies", "view_order_agreement", "view_order_warning",
            "AGREEMENT_MIN_COVERAGE",
            "ambiguity_warning", "view_silhouettes", "evaluation_scores", "tree_evaluation_scores", "tree_summary",
            "build_report", "write_outputs", "ExtraOutput", "json_safe", "load_result_for_qca", "report_projections",
@@ -65,6 +65,7 @@ class ReconstructOptions:
     preset: str | None = None  # the hull's: "paper" (as published, its default) or "refined" (reconstruction.refine)
     tree: bool = True  # build the vessel tree (and, when writing outputs, its mesh, label volume and exports)
     method: str | None = None  # "tree" (reconstruction.model) or "hull" (the paper's); None: options.chosen_method
+    check_view_order: bool = False  # two views, the tree method: also build it with the masks swapped (view_order_agreement)
 
     def __post_init__(self) -> None:
         from .reconstruction import MAX_DENSE_RESOLUTION, check_threshold_px
@@ -88,6 +89,9 @@ class ReconstructOptions:
         if self.method == "tree" and (self.preset != "paper" or self.min_views is not None):
             raise ReconstructionError("the tree method has no preset or min_views (they choose how the hull is carved); "
                                       "drop --preset/--min-views or use --method hull")
+        if self.check_view_order and self.method != "tree":
+            raise ReconstructionError("the view-order check (--check-view-order) compares the tree method's trees; "
+                                      "drop --method hull/--preset/--min-views, or the check")
 
 
 def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOptions(), *,
@@ -101,6 +105,17 @@ def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOpt
         centerlines=options.centerlines, view_names=study.names, device=options.device, min_views=options.min_views,
         preset=options.preset, tree=options.tree, method=options.method, progress=progress, warn=warn,
     )
+
+
+def view_order_agreement(study: Study, options: ReconstructOptions, result: ReconstructionResult
+                         ) -> tuple[float, float | None]:
+    """Two views: the tree method's agreement with the study's masks as given (``result``, its
+    reconstruction) and with the two masks swapped between the views
+    (:func:`angiohull.reconstruction.view_order_agreement`)."""
+    from .reconstruction import view_order_agreement as agreement
+
+    return agreement(study.projections, study.masks, result, threshold_px=options.threshold_px,
+                     engine=options.engine, device=options.device)
 
 
 def _corrected_view(view: View, du_px: float, dv_px: float, scale: float = 1.0) -> View:

@@ -25,7 +25,7 @@ from .epipolar import two_view_shift
 __all__ = ["MIN_VIEW_SEPARATION_DEG", "EDGE_MIN_RUN_PX", "EPIPOLAR_WARN_PX", "EPIPOLAR_WARN_CUT_PX", "view_separation_deg",
            "view_angle_warning", "one_view_warning", "agreement_warning", "epipolar_offset_px", "epipolar_warning",
            "epipolar_check_applies", "vessel_share_warning", "edge_runs", "edge_pixels", "edge_warning",
-           "input_warnings"]
+           "view_order_warning", "input_warnings"]
 
 MIN_VIEW_SEPARATION_DEG = 25.0
 """Views whose central rays are closer than this to parallel (or to opposite) give a warning."""
@@ -201,6 +201,20 @@ def vessel_share_warning(mask: np.ndarray, where: str) -> str | None:
     inverted; :data:`angiohull.study.MAX_VESSEL_SHARE`), None otherwise; ``where`` says which mask."""
     problem = _v.vessel_share_problem(mask)
     return f"{where}: {problem}" if problem else None
+
+
+def view_order_warning(given: float, swapped: float | None, names: Sequence[str]) -> str | None:
+    """The warning to give when the tree method's trees agree better with two views' masks swapped
+    between the views than as given (:func:`angiohull.reconstruction.view_order_agreement`; mean
+    Dice of the trees' silhouettes and the masks), None otherwise (or where no tree could be built
+    the other way round)."""
+    if swapped is None or len(names) != 2 or swapped <= given:
+        return None
+    return (f"the masks agree better with the views the other way round: the tree method's trees explain them with "
+            f"mean Dice {swapped:.3f} with {names[0]}'s and {names[1]}'s masks swapped, {given:.3f} as given; is each "
+            f"mask the image of its own view? (on generated trees the views the right way round agreed better in 36 "
+            f"of 36 cases, by 0.003-0.205; the other checks catch few swaps, since two views' masks of one tree "
+            f"cover nearly the same epipolar planes either way round)")
 
 
 def input_warnings(projections: Sequence[Projection], masks: Sequence[np.ndarray], names: Sequence[str], *,
