@@ -195,17 +195,18 @@ def test_calibrating_two_views_notes_that_their_position_stays_open(tmp_path, ca
 
 
 def test_reconstruct_with_check_view_order_warns_of_masks_given_for_the_wrong_views(tmp_path, capsys):
-    """A study whose two masks are each given for the other view (generated left tree seed 8000,
-    the two clinical views, exact masks; no other check warns of it): --check-view-order warns and
-    writes both agreements to report.json; the study the right way round gets no warning; with the
-    hull the flag is refused (the check reads the tree method's trees)."""
+    """A study whose two masks are each given for the other view (generated RCA seed 7021, the two
+    clinical views, exact masks; no other check warns of it): --check-view-order warns and writes
+    both agreements to report.json; the study the right way round gets no warning; with the hull
+    the flag is refused (the check reads the tree method's trees)."""
     import json
 
     from angiohull.cli import main
+    from angiohull.reconstruction.checks import VIEW_ORDER_MARGIN
     from angiohull.study import View, save_study
     from angiohull.synthetic import SynthOptions, make_case
 
-    case = make_case(SynthOptions(kind="left", tortuosity="simple", views=TWO, seed=8000))
+    case = make_case(SynthOptions(kind="rca", tortuosity="simple", views=TWO, seed=7021))
     names = [v.carm.clinical_name().replace(" ", "") for v in case.views]
     reports = {}
     for label, masks in (("right", [v.mask for v in case.views]), ("swapped", [v.mask for v in case.views][::-1])):
@@ -220,7 +221,8 @@ def test_reconstruct_with_check_view_order_warns_of_masks_given_for_the_wrong_vi
         else:
             assert len(warned) == 1 and "the masks agree better with the views the other way round" in warned[0]
             assert f"{names[0]}'s and {names[1]}'s masks swapped" in warned[0]
-    assert not reports["right"]["swapped_agrees_better"] and reports["swapped"]["swapped_agrees_better"]
+    assert not reports["right"]["warned"] and reports["swapped"]["warned"]
+    assert reports["right"]["warn_above"] == VIEW_ORDER_MARGIN
     assert reports["right"]["agreement_given"] == reports["swapped"]["agreement_swapped"]
     assert reports["right"]["agreement_swapped"] == reports["swapped"]["agreement_given"]
     assert main(["reconstruct", str(tmp_path / "right"), "-o", str(tmp_path / "hull"), "--check-view-order",

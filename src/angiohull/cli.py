@@ -393,12 +393,12 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
         else:
             progress("checking the view order: the tree method again with the two masks swapped between the views")
             given, swapped = workflow.view_order_agreement(study, options, result)
+            message = workflow.view_order_warning(given, swapped, study.names)
             view_order = {"agreement_given": round(given, 4),
                           "agreement_swapped": None if swapped is None else round(swapped, 4),
-                          "swapped_agrees_better": swapped is not None and swapped > given}
+                          "warn_above": workflow.VIEW_ORDER_MARGIN, "warned": message is not None}
             progress(f"view order: mean Dice of the trees' silhouettes {given:.4f} as given, "
                      + ("no tree with the masks swapped" if swapped is None else f"{swapped:.4f} swapped"))
-            message = workflow.view_order_warning(given, swapped, study.names)
             if message:
                 warnings.warn(message, AgreementWarning, stacklevel=1)
     silhouettes = workflow.view_silhouettes(study, result)

@@ -26,9 +26,10 @@ from .rasterise import boundary_cells, cell_silhouette
 from .reconstruction import DEFAULT_THRESHOLD_PX, ReconstructionResult, reconstruct
 from .reconstruction.calibration import (AGREEMENT_MIN_COVERAGE, Calibration, calibrate_shifts, shift_projection,
                                          view_coverage)
-from .reconstruction.checks import (MIN_VIEW_SEPARATION_DEG, agreement_warning, edge_pixels, edge_runs, edge_warning,
-                                    epipolar_check_applies, epipolar_offset_px, epipolar_warning, one_view_warning,
-                                    view_angle_warning, view_order_warning, view_separation_deg)
+from .reconstruction.checks import (MIN_VIEW_SEPARATION_DEG, VIEW_ORDER_MARGIN, agreement_warning, edge_pixels,
+                                    edge_runs, edge_warning, epipolar_check_applies, epipolar_offset_px,
+                                    epipolar_warning, one_view_warning, view_angle_warning, view_order_warning,
+                                    view_separation_deg)
 from . import _validation as _v
 from .errors import AngiohullError, GeometryError, OutputError, QcaError, ReconstructionError, StudyError, ViewerError
 from .geometry import Projection
@@ -42,7 +43,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["ReconstructOptions", "reconstruct_study", "calibrate_study", "view_agreement", "agreement_warning",
            "view_separation_deg", "view_angle_warning", "MIN_VIEW_SEPARATION_DEG", "two_view_hint", "one_view_warning",
            "edge_warning", "edge_runs", "edge_pixels", "epipolar_offset_px", "epipolar_warning",
-           "epipolar_check_applies", "view_order_agreement", "view_order_warning",
+           "epipolar_check_applies", "view_order_agreement", "view_order_warning", "VIEW_ORDER_MARGIN",
            "AGREEMENT_MIN_COVERAGE",
            "ambiguity_warning", "view_silhouettes", "evaluation_scores", "tree_evaluation_scores", "tree_summary",
            "build_report", "write_outputs", "ExtraOutput", "json_safe", "load_result_for_qca", "report_projections",
