@@ -392,7 +392,7 @@ def _run_study(study, options, staged, progress: _Progress, *, figure: bool, sco
                      f"views' agreement, checked above, warns of masks swapped between them)")
         else:
             progress("checking the view order: the tree method again with the two masks swapped between the views")
-            given, swapped = workflow.view_order_agreement(study, options, result)
+            given, swapped = workflow.view_order_agreement(study, result)
             message = workflow.view_order_warning(given, swapped, study.names)
             view_order = {"agreement_given": round(given, 4),
                           "agreement_swapped": None if swapped is None else round(swapped, 4),

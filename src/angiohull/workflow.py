@@ -108,15 +108,13 @@ def reconstruct_study(study: Study, options: ReconstructOptions = ReconstructOpt
     )
 
 
-def view_order_agreement(study: Study, options: ReconstructOptions, result: ReconstructionResult
-                         ) -> tuple[float, float | None]:
+def view_order_agreement(study: Study, result: ReconstructionResult) -> tuple[float, float | None]:
     """Two views: the tree method's agreement with the study's masks as given (``result``, its
     reconstruction) and with the two masks swapped between the views
     (:func:`angiohull.reconstruction.view_order_agreement`)."""
     from .reconstruction import view_order_agreement as agreement
 
-    return agreement(study.projections, study.masks, result, threshold_px=options.threshold_px,
-                     engine=options.engine, device=options.device)
+    return agreement(study.projections, study.masks, result)
 
 
 def _corrected_view(view: View, du_px: float, dv_px: float, scale: float = 1.0) -> View:

@@ -306,11 +306,11 @@ def reconstruct(projections: Sequence[Projection], masks: Sequence[np.ndarray], 
 
 
 def view_order_agreement(projections: Sequence[Projection], masks: Sequence[np.ndarray],
-                         result: ReconstructionResult, *, threshold_px: float = DEFAULT_THRESHOLD_PX,
-                         engine: str = "auto", device: str = "cpu") -> tuple[float, float | None]:
+                         result: ReconstructionResult) -> tuple[float, float | None]:
     """Two views: how well the tree method's own trees agree with the masks as given (from
     ``result``, their reconstruction with ``method="tree"``) and with the two masks swapped between
-    the views (each read with the other view's projection; built here, on the same lattice), as
+    the views (each read with the other view's projection; built here as ``result`` was: its
+    lattice, threshold, engine and device), as
     :attr:`~.model.ModelBuild.mask_agreement` gives it: the mean Dice over the views of a tree's
     silhouettes and the masks, the best over its matchings, before the hypotheses of a wrong pairing
     (which the swapped build skips: they come after this agreement, so the two compare alike).
@@ -343,11 +343,10 @@ def view_order_agreement(projections: Sequence[Projection], masks: Sequence[np.n
         raise ReconstructionError("the view-order check needs the tree method's result of the two views "
                                   "(reconstruct(..., method='tree'))")
     checked, names = _check_inputs(projections, masks, result.view_names)
-    threshold, engine = _checked_carving(threshold_px, engine, device)
     try:
         swapped = _reconstruct_tree(projections, [checked[1], checked[0]], names, resolution=result.lattice.resolution,
-                                    threshold_px=threshold, engine=engine, centerlines=False,
-                                    half_edge_mm=result.lattice.half_edge_mm, device=device, min_views=None,
+                                    threshold_px=result.threshold_px, engine=result.engine, centerlines=False,
+                                    half_edge_mm=result.lattice.half_edge_mm, device=result.device, min_views=None,
                                     preset="paper", progress=None,
                                     settings=replace(MODEL_SETTINGS, hypotheses=0, slide=None))
     except ReconstructionError:
