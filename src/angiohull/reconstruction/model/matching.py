@@ -317,7 +317,11 @@ def _candidates(a: ViewData, b: ViewData, others: Sequence[ViewData], samples: n
     for half_b in (half_run, half_skeleton):
         r = half_b * scale_b
         sigma = settings.radius_sigma_px * np.maximum(scale_a, scale_b) + settings.radius_sigma_rel * np.maximum(ra, r)
-        cost = np.minimum(((ra - r) / sigma) ** 2, settings.radius_cap)
+        # rays that do not cross (two views along one line) triangulate to no point: whether the
+        # arithmetic gives nan or a huge number there depends on the last bit of the rays (it
+        # differs between CPUs), and a nan cost is kept by no comparison below, so it is not warned of
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cost = np.minimum(((ra - r) / sigma) ** 2, settings.radius_cap)
         better = cost < unary
         unary[better], rb[better] = cost[better], r[better]
     # p lies on A's skeleton, so its partner should lie on B's: a candidate off B's skeleton (a
