@@ -508,3 +508,64 @@ def test_teasar_cover_equals_the_numpy_path_and_its_definition(seed):
         assert np.all(within[least.nonzero()][np.repeat(status, least.sum(axis=1)) == 1])
         assert not np.any(within[least.nonzero()][np.repeat(status, least.sum(axis=1)) == 0])
         assert np.mean(status == 2) < 0.2
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_tube_silhouettes_and_a_slides_counts_equal_the_numpy_path(seed):
+    """Thin and thick tubes (discs of 1 to 60 pixels, some past the image's edges): the tree
+    method's silhouette pixel for pixel as the NumPy code draws it and as a test of every pixel
+    centre against every disc finds it; the slide's per-pixel counts, a move's score and the
+    counts after a move kept and a branch replaced, as the NumPy code counts them."""
+    from angiohull.reconstruction.model import sliding
+    from angiohull.reconstruction.model.agreement import _samples, tube_silhouette
+    from angiohull.tree import Branch, VesselTree
+
+    rng = np.random.default_rng(seed)
+    projection = CArmGeometry(20.0 * seed, 10.0, 1200.0, 800.0, (0.35, 0.35), (96, 128)).projection()
+    points = np.cumsum(rng.normal(0.0, 4.0, (12, 3)), axis=0) + rng.uniform(-20, 20, 3)
+    tree = VesselTree((Branch(points, rng.uniform(0.1, 1.0 if seed % 2 else 12.0, len(points))),))
+    got, reference = _both(lambda: tube_silhouette(tree, projection))
+    np.testing.assert_array_equal(got, reference)
+    samples, radii = _samples(tree, 0.25)
+    uv = projection.project(samples)
+    rho = radii * max(projection.focal_lengths_px) / projection.depth_mm(samples)
+    v, u = np.indices(got.shape)
+    inside = ((u.ravel()[:, None] - uv[:, 0]) ** 2 + (v.ravel()[:, None] - uv[:, 1]) ** 2 <= rho ** 2).any(axis=1)
+    np.testing.assert_array_equal(got.ravel(), inside)
+    assert got.any() and not got.all()
+
+    mask = np.zeros(got.shape, dtype=bool)
+    mask[20:70, 10:90] = True
+
+    def slide():
+        picture = sliding._Picture(tree.branches, projection, mask, 0.25)
+        old = picture.samples[0].points_mm
+        new = old + np.array([1.0, -0.5, 2.0])
+        score, touched, change = picture.moved(old, new, picture.samples[0].radius_mm)
+        dense = np.zeros(mask.size, dtype=np.int64)
+        dense[touched] = change  # (a pixel whose count does not change may be listed or not)
+        counts = [picture.count.copy()]
+        picture.keep(touched, change)
+        counts.append(picture.count.copy())
+        picture.replace(0, Branch(new[::3], picture.samples[0].radius_mm[::3] * 0.5), new)
+        return score, dense, counts + [picture.count.copy()]
+
+    (score, dense, counts), (score_ref, dense_ref, counts_ref) = _both(slide)
+    assert score == score_ref
+    np.testing.assert_array_equal(dense, dense_ref)
+    for a, b in zip(counts, counts_ref):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_lattice_points_in_thick_tubes_equal_the_numpy_path():
+    """Tubes 3 to 9 mm in radius on a 0.4 mm lattice: each lattice column's runs of many balls
+    joined (the kernel marks each run's ends) as the NumPy code joins them."""
+    from angiohull.reconstruction.model.tubes import lattice_points_in_tubes
+
+    rng = np.random.default_rng(3)
+    lattice = Lattice(20.0, 101)
+    starts, ends = rng.uniform(-22, 22, (4, 3)), rng.uniform(-22, 22, (4, 3))
+    r0, r1 = rng.uniform(3.0, 9.0, 4), rng.uniform(3.0, 9.0, 4)
+    got, reference = _both(lambda: lattice_points_in_tubes(starts, ends, r0, r1, lattice, margin_mm=0.2))
+    np.testing.assert_array_equal(got, reference)
+    assert len(got) > 10_000

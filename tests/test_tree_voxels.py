@@ -50,3 +50,23 @@ def test_distance_to_a_set_is_the_k_d_trees(max_cells):
         voxels = np.argwhere(np.ones(volume.shape, dtype=bool))
         expected, _ = cKDTree(np.argwhere(target)).query(voxels)
         np.testing.assert_array_equal(distance_to(target, voxels, max_cells=max_cells), expected)
+
+
+def test_distance_to_a_thick_object_reads_the_distance_transform_and_gives_the_k_d_trees():
+    # a ball 14 voxels in radius: most of its voxels lie farther from the shell around it than the
+    # rings reach cheaply, so the rest are read off the exact distance transform; the same numbers
+    # as a k-d tree on the shell, to the bit, and a thin tube's stay on the rings
+    grid = np.indices((33, 33, 33)).transpose(1, 2, 3, 0) - 16
+    ball = (grid ** 2).sum(axis=3) <= 14 ** 2
+    shell = dilated(ball, 1) & ~ball
+    voxels = np.argwhere(ball)
+    expected, _ = cKDTree(np.argwhere(shell)).query(voxels)
+    np.testing.assert_array_equal(distance_to(shell, voxels), expected)
+    assert expected.max() > 8  # past the rings' reach: without the transform the k-d tree would answer
+    tube = np.zeros((40, 9, 9), dtype=bool)
+    tube[:, 3:6, 3:6] = True
+    rim = dilated(tube, 1) & ~tube
+    voxels = np.argwhere(tube)
+    np.testing.assert_array_equal(distance_to(rim, voxels), cKDTree(np.argwhere(rim)).query(voxels)[0])
+    # no target at all: infinitely far, either way
+    assert np.all(np.isinf(distance_to(np.zeros(ball.shape, dtype=bool), np.argwhere(ball))))

@@ -754,7 +754,9 @@ def balls_on_lattice(centres, radii, margin, axis, half, h, lo, shape):  # pragm
     :func:`angiohull.reconstruction.model.tubes.lattice_points_in_tubes` finds (the same estimate
     from the square root, moved twice by the same exact tests)."""
     k = axis.size
-    volume = np.zeros((shape[0], shape[1], shape[2]), np.bool_)
+    # each (ball, column) run marked at its two ends, the runs' union summed along z after: one
+    # write per run instead of one per point (a thick tube's balls overlap nearly whole)
+    marks = np.zeros((shape[0], shape[1], shape[2] + 1), np.int32)
     for b in range(centres.shape[0]):
         cx = centres[b, 0]
         cy = centres[b, 1]
@@ -784,9 +786,66 @@ def balls_on_lattice(centres, radii, margin, axis, half, h, lo, shape):  # pragm
                         k_hi += 1
                     if (axis[max(k_hi, 0)] - z) ** 2 > rem:
                         k_hi -= 1
-                for kk in range(max(k_lo, lo[2]), min(k_hi, lo[2] + shape[2] - 1) + 1):
-                    volume[i - lo[0], j - lo[1], kk - lo[2]] = True
+                first = max(k_lo, lo[2])
+                last = min(k_hi, lo[2] + shape[2] - 1)
+                if first <= last:
+                    marks[i - lo[0], j - lo[1], first - lo[2]] += 1
+                    marks[i - lo[0], j - lo[1], last + 1 - lo[2]] -= 1
+    volume = np.zeros((shape[0], shape[1], shape[2]), np.bool_)
+    for i in range(shape[0]):
+        for j in range(shape[1]):
+            count = 0
+            for kk in range(shape[2]):
+                count += marks[i, j, kk]
+                volume[i, j, kk] = count > 0
     return volume
+
+
+# --- the tree method's silhouettes (angiohull.reconstruction.model.agreement) ----------------------
+
+@numba.njit(**_JIT)
+def discs_on_image(uv, rho, image):  # pragma: no cover - compiled
+    """Set the pixels of the bool ``image`` within ``rho[s]`` of ``uv[s]`` (u, v) for every sample
+    ``s``, as :func:`angiohull.reconstruction.model.agreement._disc_groups` finds them: the pixel
+    centres (integer u, v) of the square of half-edge ``ceil(rho)`` around the rounded centre, inside
+    the image, whose squared distance to the centre is at most ``rho`` squared (the same test)."""
+    rows = image.shape[0]
+    cols = image.shape[1]
+    for s in range(uv.shape[0]):
+        u = uv[s, 0]
+        v = uv[s, 1]
+        r = rho[s]
+        reach = np.int64(np.ceil(r))
+        ru = np.int64(np.rint(u))
+        rv = np.int64(np.rint(v))
+        bound = r ** 2
+        for cv in range(max(rv - reach, 0), min(rv + reach, rows - 1) + 1):
+            dv2 = (cv - v) ** 2
+            for cu in range(max(ru - reach, 0), min(ru + reach, cols - 1) + 1):
+                if (cu - u) ** 2 + dv2 <= bound:
+                    image[cv, cu] = True
+
+
+@numba.njit(**_JIT)
+def add_disc_counts(uv, rho, sign, counts):  # pragma: no cover - compiled
+    """Add ``sign[s]`` to ``counts`` (a 2D int array, the image's shape) at each pixel of the disc
+    of every sample ``s``: the pixels :func:`discs_on_image` sets, a pixel two discs cover counted
+    twice (as :func:`angiohull.reconstruction.model.agreement._disc_pixels` lists it twice)."""
+    rows = counts.shape[0]
+    cols = counts.shape[1]
+    for s in range(uv.shape[0]):
+        u = uv[s, 0]
+        v = uv[s, 1]
+        r = rho[s]
+        reach = np.int64(np.ceil(r))
+        ru = np.int64(np.rint(u))
+        rv = np.int64(np.rint(v))
+        bound = r ** 2
+        for cv in range(max(rv - reach, 0), min(rv + reach, rows - 1) + 1):
+            dv2 = (cv - v) ** 2
+            for cu in range(max(ru - reach, 0), min(ru + reach, cols - 1) + 1):
+                if (cu - u) ** 2 + dv2 <= bound:
+                    counts[cv, cu] += sign[s]
 
 
 # --- the tree method's junctions (angiohull.reconstruction.vessel_tree) ---------------------------

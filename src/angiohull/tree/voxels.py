@@ -92,7 +92,12 @@ def distance_to(target: np.ndarray, voxels: np.ndarray, *, max_cells: int = 8) -
 
     Exact: the offsets around a voxel are tried ring by ring, by growing distance (a whole ring at
     a time), up to ``max_cells``; the voxels with no target that near are found with a k-d tree.
-    Fast where the targets are near, as the empty voxels around a thin object are."""
+    Fast where the targets are near, as the empty voxels around a thin object are. Where they are
+    far (a thick object: a vessel tens of voxels wide) the rings would try most offsets for most
+    voxels, so once the rings' work (voxels times offsets tried) would pass
+    :data:`_EDT_CHECKS_PER_CELL` times ``target``'s size, the voxels left are read off the exact
+    Euclidean distance transform of the whole array instead (:func:`scipy.ndimage.distance_transform_edt`:
+    the same distances, a square root of the same integer sum)."""
     target = np.asarray(target, dtype=bool)
     voxels = np.asarray(voxels, dtype=np.int64)
     distance = np.zeros(len(voxels))
@@ -104,9 +109,16 @@ def distance_to(target: np.ndarray, voxels: np.ndarray, *, max_cells: int = 8) -
     padded = padded.ravel()
     flat = (voxels + pad) @ strides
     todo = np.flatnonzero(~padded[flat])
+    budget, spent = _EDT_CHECKS_PER_CELL * target.size, 0
     for squared, offsets in _rings(max_cells):
         if len(todo) == 0:
             break
+        spent += len(todo) * len(offsets)
+        if spent > budget and target.any():  # a thick object: the transform costs less than the rings left
+            from scipy import ndimage as ndi
+
+            distance[todo] = ndi.distance_transform_edt(~target)[tuple(voxels[todo].T)]
+            return distance
         hit = np.any(padded[flat[todo, None] + (offsets @ strides)[None, :]], axis=1)
         distance[todo[hit]] = np.sqrt(squared)
         todo = todo[~hit]
@@ -116,6 +128,10 @@ def distance_to(target: np.ndarray, voxels: np.ndarray, *, max_cells: int = 8) -
         targets = coordinates(target)
         distance[todo] = cKDTree(targets).query(voxels[todo])[0] if len(targets) else np.inf
     return distance
+
+
+_EDT_CHECKS_PER_CELL = 4.0  # distance_to: one voxel-offset check of the rings costs about a quarter of the
+# distance transform's time per cell of the array (measured 2026-12-08: 20 ns against 85 ns)
 
 
 _RING_CACHE: dict[int, list[tuple[int, np.ndarray]]] = {}

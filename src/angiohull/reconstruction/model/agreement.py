@@ -20,6 +20,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 from scipy import ndimage as ndi
 
+from ...compiled import kernels
 from ...geometry import Projection
 from ...tree import Branch, VesselTree
 
@@ -84,6 +85,11 @@ def tube_silhouette(tree: VesselTree, projection: Projection, *, step_mm: float 
     points, radii = points[front], radii[front]
     uv = projection.project(points)
     rho = radii * max(projection.focal_lengths_px) / projection.depth_mm(points)
+    compiled = kernels()
+    if compiled is not None:  # the same pixels, sample by sample (no offset grids: a thick tube's are large)
+        compiled.discs_on_image(np.ascontiguousarray(uv, dtype=np.float64),
+                                np.ascontiguousarray(rho, dtype=np.float64), image)
+        return image
     pixels = image.reshape(-1)  # a view of the image
     for _, flat, _ in _disc_groups(uv, rho, shape):  # one offset grid per reach: (samples, offsets) at once
         pixels[flat] = True

@@ -33,6 +33,7 @@ import numpy as np
 from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
 
+from ...compiled import kernels
 from ...geometry import Projection
 from ...tree import Branch, VesselTree
 from .agreement import _disc_pixels, tube_silhouette
@@ -73,20 +74,41 @@ class _Picture:
         self.weight = np.where(mask.ravel(), 1, -1)  # a covered pixel: +1 in the mask, -1 outside
         self.step_mm = step_mm
         self.samples = [self._sampled(b) for b in branches]
-        self.count = np.bincount(np.concatenate([self.pixels(b.points_mm, b.radius_mm)[0] for b in self.samples]),
-                                 minlength=mask.size).astype(np.int32)
+        self._compiled = kernels()
+        if self._compiled is not None:
+            self.count = self._signed_counts(np.concatenate([b.points_mm for b in self.samples]),
+                                             np.concatenate([b.radius_mm for b in self.samples]), 1).ravel()
+        else:
+            self.count = np.bincount(np.concatenate([self.pixels(b.points_mm, b.radius_mm)[0] for b in self.samples]),
+                                     minlength=mask.size).astype(np.int32)
 
     def _sampled(self, branch: Branch) -> Branch:
         return branch.resampled(self.step_mm) if branch.length_mm > self.step_mm else branch
 
     def replace(self, k: int, branch: Branch, now: np.ndarray) -> None:
         """Branch ``k``'s samples, at ``now`` at present, taken again from ``branch``."""
+        if self._compiled is not None:
+            self.count -= self._signed_counts(now, self.samples[k].radius_mm, 1).ravel()
+            self.samples[k] = self._sampled(branch)
+            self.count += self._signed_counts(self.samples[k].points_mm, self.samples[k].radius_mm, 1).ravel()
+            return
         np.subtract.at(self.count, self.pixels(now, self.samples[k].radius_mm)[0], 1)
         self.samples[k] = self._sampled(branch)
         np.add.at(self.count, self.pixels(self.samples[k].points_mm, self.samples[k].radius_mm)[0], 1)
 
     def pixels(self, points: np.ndarray, radii: np.ndarray) -> np.ndarray:
         return _disc_pixels(self.view.project(points), radii * self.focal / self.view.depth_mm(points), self.shape)
+
+    def _signed_counts(self, points: np.ndarray, radii: np.ndarray, sign) -> np.ndarray:
+        """Per pixel (the image's shape, int32), the sum of ``sign`` (per sample, or one for all)
+        over the discs that cover it: the compiled kernel's count of :meth:`pixels`."""
+        counts = np.zeros(self.shape, dtype=np.int32)
+        self._compiled.add_disc_counts(np.ascontiguousarray(self.view.project(points), dtype=np.float64),
+                                       np.ascontiguousarray(radii * self.focal / self.view.depth_mm(points),
+                                                            dtype=np.float64),
+                                       np.broadcast_to(np.asarray(sign, dtype=np.int32), (len(points),)).copy(),
+                                       counts)
+        return counts
 
     def moved(self, old: np.ndarray, new: np.ndarray, radii: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
         """Samples at ``old`` moved to ``new`` (their radii ``radii``), the counts left as they
@@ -95,7 +117,16 @@ class _Picture:
         pixels than :data:`_DENSE_SHARE` of the image's (wide vessels on a large image), the
         changes are counted on the whole image and the pixels whose count does not change left
         out (they change neither the score nor the counts), instead of sorting the discs' pixels
-        (the same score and counts; the slide on the XCAT vessel's 960 x 960 views 23.8 -> 13.4 s)."""
+        (the same score and counts; the slide on the XCAT vessel's 960 x 960 views 23.8 -> 13.4 s).
+        With the compiled kernels the discs are counted on the whole image always, in compiled code,
+        without listing their pixels (the same score and counts again; 2026-12-08)."""
+        if self._compiled is not None:  # counted on the whole image in compiled code (the same score and counts)
+            dense = self._signed_counts(np.vstack([old, new]), np.concatenate([radii, radii]),
+                                        np.repeat(np.array([-1, 1], dtype=np.int32), len(radii))).ravel()
+            touched = np.flatnonzero(dense)
+            change = dense[touched]
+            was, now = self.count[touched] > 0, self.count[touched] + change > 0
+            return int((self.weight[touched] * (now.astype(np.int64) - was)).sum()), touched, change
         pixels, owner = self.pixels(np.vstack([old, new]), np.concatenate([radii, radii]))
         sign = np.where(owner >= len(radii), 1, -1)
         if len(pixels) > _DENSE_SHARE * self.weight.size:
