@@ -804,33 +804,13 @@ def balls_on_lattice(centres, radii, margin, axis, half, h, lo, shape):  # pragm
 # --- the tree method's silhouettes (angiohull.reconstruction.model.agreement) ----------------------
 
 @numba.njit(**_JIT)
-def discs_on_image(uv, rho, image):  # pragma: no cover - compiled
-    """Set the pixels of the bool ``image`` within ``rho[s]`` of ``uv[s]`` (u, v) for every sample
-    ``s``, as :func:`angiohull.reconstruction.model.agreement._disc_groups` finds them: the pixel
-    centres (integer u, v) of the square of half-edge ``ceil(rho)`` around the rounded centre, inside
-    the image, whose squared distance to the centre is at most ``rho`` squared (the same test)."""
-    rows = image.shape[0]
-    cols = image.shape[1]
-    for s in range(uv.shape[0]):
-        u = uv[s, 0]
-        v = uv[s, 1]
-        r = rho[s]
-        reach = np.int64(np.ceil(r))
-        ru = np.int64(np.rint(u))
-        rv = np.int64(np.rint(v))
-        bound = r ** 2
-        for cv in range(max(rv - reach, 0), min(rv + reach, rows - 1) + 1):
-            dv2 = (cv - v) ** 2
-            for cu in range(max(ru - reach, 0), min(ru + reach, cols - 1) + 1):
-                if (cu - u) ** 2 + dv2 <= bound:
-                    image[cv, cu] = True
-
-
-@numba.njit(**_JIT)
 def add_disc_counts(uv, rho, sign, counts):  # pragma: no cover - compiled
     """Add ``sign[s]`` to ``counts`` (a 2D int array, the image's shape) at each pixel of the disc
-    of every sample ``s``: the pixels :func:`discs_on_image` sets, a pixel two discs cover counted
-    twice (as :func:`angiohull.reconstruction.model.agreement._disc_pixels` lists it twice)."""
+    of every sample ``s`` as :func:`angiohull.reconstruction.model.agreement._disc_groups` finds
+    them: the pixel centres (integer u, v) of the square of half-edge ``ceil(rho[s])`` around the
+    rounded centre ``uv[s]``, inside the image, whose squared distance to the centre is at most
+    ``rho[s]`` squared (the same test); a pixel two discs cover counted twice (as
+    :func:`angiohull.reconstruction.model.agreement._disc_pixels` lists it twice)."""
     rows = counts.shape[0]
     cols = counts.shape[1]
     for s in range(uv.shape[0]):

@@ -2,10 +2,10 @@
 
 The carving, the Guo–Hall thinning, the centerline step's nearest-neighbour search, the
 calibration's distances to a 2D centreline and dilations, the refined preset's nearest axis points
-and rivals and the tree method's lattice points in tubes, tube silhouettes and the slide's disc counts, junction pixel counts, cross-section
-runs, spoiled runs, pixel matching (min-sum over a forest), the TEASAR paths' voxel graph
-(its CSR rows built directly) and their cover (each voxel's nearest path voxels, the k-d tree
-asked where they disagree) each have a NumPy implementation,
+and rivals and the tree method's lattice points in tubes, tube silhouettes and the slide's disc
+counts, junction pixel counts, cross-section runs, spoiled runs, pixel matching (min-sum over a
+forest), the TEASAR paths' voxel graph (its CSR rows built directly) and their cover (each voxel's
+nearest path voxels, the k-d tree asked where they disagree) each have a NumPy implementation,
 which is the reference, and a compiled one
 (:mod:`angiohull._numba_kernels`) that computes the same thing with the same arithmetic: the same
 points, skeletons and neighbours bit for bit (the tests compare them).

@@ -87,9 +87,10 @@ def tube_silhouette(tree: VesselTree, projection: Projection, *, step_mm: float 
     rho = radii * max(projection.focal_lengths_px) / projection.depth_mm(points)
     compiled = kernels()
     if compiled is not None:  # the same pixels, sample by sample (no offset grids: a thick tube's are large)
-        compiled.discs_on_image(np.ascontiguousarray(uv, dtype=np.float64),
-                                np.ascontiguousarray(rho, dtype=np.float64), image)
-        return image
+        covers = np.zeros(shape, dtype=np.int32)
+        compiled.add_disc_counts(np.ascontiguousarray(uv, dtype=np.float64), np.ascontiguousarray(rho, dtype=np.float64),
+                                 np.ones(len(uv), dtype=np.int32), covers)
+        return covers > 0
     pixels = image.reshape(-1)  # a view of the image
     for _, flat, _ in _disc_groups(uv, rho, shape):  # one offset grid per reach: (samples, offsets) at once
         pixels[flat] = True
