@@ -1246,3 +1246,28 @@ def test_a_narrow_side_branch_turning_back_at_a_branch_end_is_no_hairpin():
     # a child as wide as the branch turning back so: a fold, cut with the rule on
     assert _Arrays.of(tree(2.2)).without_hairpins(TREE_SETTINGS.fold_bend_deg, TREE_SETTINGS.hairpin_reach_radii, step,
                                                   ratio)[1] == 1
+
+
+def test_a_folds_apex_gets_a_unit_tangent_that_no_last_bit_turns():
+    """A branch that runs 2 mm along a diagonal and straight back (its arms coincide): at the apex
+    the chord one radius behind to one radius ahead collapses to the arithmetic's noise. The
+    tangent there is the step from the point before, a unit vector, the same whether the points
+    carry 1e-15 mm of noise or not (before, the noise's direction, 0.0096 long, one machine's
+    cross-section not another's: docs/tree-method.md, "Reproducibility")."""
+    from angiohull.reconstruction.vessel_tree import _Arrays
+
+    axis = np.array([-1.0, 1.0, -1.0]) / np.sqrt(3.0)
+    out = np.arange(0, 9)[:, None] * 0.25 * axis
+    points = np.vstack([out, out[-2::-1]]) + np.array([-17.0, 15.0, -10.0])  # apex at index 8, then back
+    radius = np.full(len(points), 0.6)
+    rng = np.random.default_rng(0)
+    tangents = []
+    for noise in (0.0, 1e-15, 4e-15):
+        jittered = points + noise * rng.standard_normal(points.shape)
+        arrays = _Arrays(jittered, radius.copy(), np.array([0]), np.array([len(points)]), [None], [None], ["fold"])
+        tangents.append(arrays.tangents())
+    for t in tangents:
+        np.testing.assert_allclose(np.linalg.norm(t, axis=1), 1.0, rtol=1e-12)
+        np.testing.assert_allclose(t[8], axis, atol=1e-12)  # the step onto the apex: along the outward arm
+    np.testing.assert_allclose(tangents[1], tangents[0], atol=1e-9)
+    np.testing.assert_allclose(tangents[2], tangents[0], atol=1e-9)

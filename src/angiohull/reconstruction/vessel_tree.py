@@ -399,6 +399,9 @@ def _parabola_hat(window: int) -> np.ndarray:
     return hat
 
 
+_COLLAPSED_CHORD_MM = 1e-9  # _Arrays.tangents: a chord shorter than this gives no direction (a fold's apex)
+
+
 @dataclass
 class _Arrays:
     """The tree as flat arrays while it is fitted: points, radii and where each branch sits."""
@@ -447,7 +450,18 @@ class _Arrays:
             s = self.span(b)
             behind, ahead = self._chord_ends(b, min_half_chord_mm)
             g = ahead - behind
-            out[s] = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
+            length = np.linalg.norm(g, axis=1)
+            folded = length < _COLLAPSED_CHORD_MM
+            if folded.any():
+                # at the apex of a fold whose arms coincide within the reach the chord collapses to
+                # the arithmetic's noise (1e-14 mm), and its direction with it: one machine's last
+                # bits drew another cross-section than another's (docs/tree-method.md,
+                # "Reproducibility"); the step from the point before (at a branch's first point, to
+                # the next) stands in
+                p = self.points[s]
+                step = np.vstack([p[1:2] - p[:1], np.diff(p, axis=0)]) if len(p) > 1 else np.zeros_like(p)
+                g[folded], length[folded] = step[folded], np.linalg.norm(step[folded], axis=1)
+            out[s] = g / np.maximum(length, 1e-12)[:, None]
         return out
 
     def _chord_ends(self, b: int, min_half_chord_mm: float) -> tuple[np.ndarray, np.ndarray]:
